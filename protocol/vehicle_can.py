@@ -1,0 +1,870 @@
+"""Vehicle-CAN codec and receiver: typed frames <-> `protocol/vehicle.dbc`, with E2E protection.
+
+DESIGN section 3. The DBC is the single source of truth for ids, signals, scaling, ranges and cycle
+times; this module only names each signal's field in a typed frame (SI units in the field names) and
+checks on load that the DBC and the code agree (units, enum values, CRC/counter layout), so a DBC edit
+that would change a meaning fails loudly instead of silently rescaling a command.
+
+Messages (all 8 bytes, byte 0 = CRC, byte 1 low nibble = alive counter, see `e2e`):
+
+    ESTOP_Radio    0x0F0  ESTOP   -> ECU, GATEWAY  50 ms  `EstopRadio`
+    DBW_Command    0x100  ECU     -> GATEWAY       10 ms  `DbwCommand`
+    GW_WheelSpeeds 0x120  GATEWAY -> ECU           10 ms  `WheelSpeeds`
+    GW_Motion      0x121  GATEWAY -> ECU           10 ms  `Motion`
+    GW_Driver      0x122  GATEWAY -> ECU           10 ms  `DriverInputs`
+    GW_Steer       0x123  GATEWAY -> ECU           10 ms  `SteerReport`
+    RADAR_Target   0x300  RADAR   -> HOST          50 ms  `RadarTarget`
+
+Senders use `VehicleCodec.encode` (or `VehicleTx`, which also keeps the alive counters). Receivers
+use `VehicleRx` (alias `FrameMonitor`), which never raises on bus input: it rejects malformed,
+corrupt, stale, repeated and out-of-order frames, counts each kind, and tracks freshness per message.
+
+Signal packing is cantools' (non-strict encode after our own range check on raw integers, which is
+exact where float comparisons at the range ends are not). Range checks work on raw values: a value
+within half an LSB outside the DBC range rounds onto the range end and is accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from enum import IntEnum
+from importlib import resources
+from pathlib import Path
+from typing import Any, Final, Literal
+
+import can
+import cantools
+import cantools.database
+from bywire.protocol.e2e import (
+    COUNTER_MODULO,
+    DEFAULT_MAX_DELTA_COUNTER,
+    CounterStatus,
+    RejectReason,
+    TxCounter,
+    check_counter,
+    e2e_crc,
+)
+from bywire.protocol.ecu_types import EcuState, EstopMode
+
+__all__ = [
+    "DbwCommand",
+    "DriverInputs",
+    "EstopRadio",
+    "FrameError",
+    "FrameMonitor",
+    "Motion",
+    "RadarTarget",
+    "RejectReason",
+    "SteerReport",
+    "VehicleCodec",
+    "VehicleFrame",
+    "VehicleRx",
+    "VehicleTx",
+    "WheelSpeeds",
+    "default_dbc_path",
+]
+
+DEFAULT_TIMEOUT_CYCLES = 5.0  # 50 ms for 10 ms frames: the ECU's vehicle-data freshness limit
+DEFAULT_MAX_AGE_CYCLES = 1.0  # a frame older than one cycle has a newer sibling on the bus
+UNKNOWN_IDS_KEPT = 16  # distinct unknown ids listed in stats(); the rest only counted
+
+
+# -- typed frames ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class EstopRadio:
+    """ESTOP_Radio (0x0F0): E-stop radio receiver state (DARPA Urban Challenge rules 3.4.2)."""
+
+    mode: EstopMode
+
+
+@dataclass(frozen=True, slots=True)
+class DbwCommand:
+    """DBW_Command (0x100): the ECU's actuator command to the drive-by-wire gateway."""
+
+    throttle_pct: float  # ThrottlePedal, 0..100 %
+    brake_bar: float  # BrakePressure, master-cylinder pressure request, 0..200 bar
+    steer_angle_rad: float  # SteerAngle, road-wheel angle, positive left (ISO 8855), +-0.6 rad
+    engage: bool
+    park_brake: bool
+    ignition: bool
+    steer_enable: bool
+    ecu_state: EcuState
+
+
+@dataclass(frozen=True, slots=True)
+class WheelSpeeds:
+    """GW_WheelSpeeds (0x120): wheel speeds, unsigned (no reversing in this protocol version)."""
+
+    fl_mps: float
+    fr_mps: float
+    rl_mps: float
+    rr_mps: float
+
+    @property
+    def mean_mps(self) -> float:
+        return (self.fl_mps + self.fr_mps + self.rl_mps + self.rr_mps) / 4.0
+
+
+@dataclass(frozen=True, slots=True)
+class Motion:
+    """GW_Motion (0x121): INS longitudinal acceleration (gravity removed), yaw rate, brake pressure."""
+
+    long_accel_mps2: float
+    yaw_rate_radps: float
+    brake_bar_actual: float
+
+
+@dataclass(frozen=True, slots=True)
+class DriverInputs:
+    """GW_Driver (0x122): the driver's pedals, for driver-intervention detection."""
+
+    brake_pedal_pressed: bool
+    throttle_pedal_pct: float
+    brake_pedal_pct: float
+
+
+@dataclass(frozen=True, slots=True)
+class SteerReport:
+    """GW_Steer (0x123): measured road-wheel angle and the driver's steering torque."""
+
+    steer_angle_rad: float
+    steer_torque_nm: float
+
+
+@dataclass(frozen=True, slots=True)
+class RadarTarget:
+    """RADAR_Target (0x300): the front radar's nearest in-lane target."""
+
+    valid: bool
+    range_m: float
+    range_rate_mps: float
+    azimuth_rad: float
+
+
+VehicleFrame = EstopRadio | DbwCommand | WheelSpeeds | Motion | DriverInputs | SteerReport | RadarTarget
+FrameKey = int | str | type  # a frame id, a DBC message name, or a typed-frame class
+
+
+# -- the code's half of the schema: which field is which signal, in which unit -----------------------
+
+_Kind = Literal["float", "bool", "enum"]
+
+
+@dataclass(frozen=True, slots=True)
+class _Field:
+    name: str
+    signal: str
+    kind: _Kind
+    unit: str | None = None  # the unit the DBC must declare (floats)
+    enum: type[IntEnum] | None = None
+
+
+def _num(name: str, signal: str, unit: str) -> _Field:
+    return _Field(name, signal, "float", unit=unit)
+
+
+def _flag(name: str, signal: str) -> _Field:
+    return _Field(name, signal, "bool")
+
+
+def _enum(name: str, signal: str, enum: type[IntEnum]) -> _Field:
+    return _Field(name, signal, "enum", enum=enum)
+
+
+_LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
+    EstopRadio: ("ESTOP_Radio", (_enum("mode", "EstopMode", EstopMode),)),
+    DbwCommand: (
+        "DBW_Command",
+        (
+            _num("throttle_pct", "ThrottlePedal", "%"),
+            _num("brake_bar", "BrakePressure", "bar"),
+            _num("steer_angle_rad", "SteerAngle", "rad"),
+            _flag("engage", "Engage"),
+            _flag("park_brake", "ParkBrake"),
+            _flag("ignition", "Ignition"),
+            _flag("steer_enable", "SteerEnable"),
+            _enum("ecu_state", "EcuState", EcuState),
+        ),
+    ),
+    WheelSpeeds: (
+        "GW_WheelSpeeds",
+        (
+            _num("fl_mps", "WheelSpeed_FL", "m/s"),
+            _num("fr_mps", "WheelSpeed_FR", "m/s"),
+            _num("rl_mps", "WheelSpeed_RL", "m/s"),
+            _num("rr_mps", "WheelSpeed_RR", "m/s"),
+        ),
+    ),
+    Motion: (
+        "GW_Motion",
+        (
+            _num("long_accel_mps2", "LongAccel", "m/s2"),
+            _num("yaw_rate_radps", "YawRate", "rad/s"),
+            _num("brake_bar_actual", "BrakePressureActual", "bar"),
+        ),
+    ),
+    DriverInputs: (
+        "GW_Driver",
+        (
+            _flag("brake_pedal_pressed", "BrakePedalPressed"),
+            _num("throttle_pedal_pct", "ThrottlePedalDriver", "%"),
+            _num("brake_pedal_pct", "BrakePedalDriver", "%"),
+        ),
+    ),
+    SteerReport: (
+        "GW_Steer",
+        (
+            _num("steer_angle_rad", "SteerAngleActual", "rad"),
+            _num("steer_torque_nm", "SteerTorqueDriver", "Nm"),
+        ),
+    ),
+    RadarTarget: (
+        "RADAR_Target",
+        (
+            _flag("valid", "TargetValid"),
+            _num("range_m", "Range", "m"),
+            _num("range_rate_mps", "RangeRate", "m/s"),
+            _num("azimuth_rad", "Azimuth", "rad"),
+        ),
+    ),
+}
+
+
+# -- errors -------------------------------------------------------------------------------------
+
+
+class FrameError(ValueError):
+    """A received frame that cannot be used: `frame_id`, `reason` (a RejectReason) and `detail`."""
+
+    def __init__(self, frame_id: int, reason: RejectReason, detail: str) -> None:
+        super().__init__(f"vehicle CAN frame {frame_id:#05x}: {reason.value}: {detail}")
+        self.frame_id = frame_id
+        self.reason = reason
+        self.detail = detail
+
+
+# -- the compiled schema --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class SignalInfo:
+    """One DBC signal as the codec uses it: scaling and the allowed raw range (DBC min/max)."""
+
+    field: str
+    signal: str
+    kind: _Kind
+    enum: type[IntEnum] | None
+    scale: float
+    offset: float
+    minimum: float
+    maximum: float
+    raw_min: int
+    raw_max: int
+    unit: str
+
+
+@dataclass(frozen=True, slots=True)
+class MessageInfo:
+    """One DBC message as the codec uses it."""
+
+    name: str
+    frame_id: int
+    frame_type: type
+    length: int
+    cycle_time_s: float
+    receivers: frozenset[str]
+    senders: tuple[str, ...]
+    crc_signal: str
+    counter_signal: str
+    signals: tuple[SignalInfo, ...]
+    message: Any  # cantools.database.can.Message (cantools ships no type stubs)
+
+
+def default_dbc_path() -> Path:
+    """The packaged `vehicle.dbc` (bywire.protocol)."""
+    return Path(str(resources.files("bywire.protocol").joinpath("vehicle.dbc")))
+
+
+def _bit_range(length: int, signed: bool) -> tuple[int, int]:
+    return (-(1 << (length - 1)), (1 << (length - 1)) - 1) if signed else (0, (1 << length) - 1)
+
+
+def _compile(db: Any, where: str) -> dict[int, MessageInfo]:
+    by_name = {m.name: m for m in db.messages}
+    expected = {name for name, _ in _LAYOUT.values()}
+    missing = sorted(expected - by_name.keys())
+    extra = sorted(by_name.keys() - expected)
+    if missing or extra:
+        raise ValueError(
+            f"{where}: DBC and bywire.protocol.vehicle_can disagree: "
+            f"messages missing from the DBC {missing}, messages without a typed frame {extra}"
+        )
+    infos: dict[int, MessageInfo] = {}
+    for frame_type, (name, fields) in _LAYOUT.items():
+        msg = by_name[name]
+        here = f"{where}: message {name} ({msg.frame_id:#05x})"
+        if msg.is_extended_frame or msg.frame_id > 0x7FF:
+            raise ValueError(f"{here}: must be a standard 11-bit frame (the E2E data id is 2 bytes)")
+        if msg.length < 2:
+            raise ValueError(f"{here}: length {msg.length} cannot hold the CRC and counter bytes")
+        if not msg.cycle_time or msg.cycle_time <= 0:
+            raise ValueError(f"{here}: no GenMsgCycleTime (receivers derive timeouts from it)")
+        sigs = {s.name: s for s in msg.signals}
+        for suffix, start, length in (("_CRC", 0, 8), ("_Counter", 8, 4)):
+            s = sigs.get(name + suffix)
+            if s is None or (s.start, s.length, s.byte_order, s.is_signed, s.scale, s.offset) != (
+                start,
+                length,
+                "little_endian",
+                False,
+                1,
+                0,
+            ):
+                raise ValueError(
+                    f"{here}: signal {name}{suffix} must be {start}|{length}@1+ (1,0) for the E2E layout"
+                )
+        infos_sig = []
+        for f in fields:
+            s = sigs.get(f.signal)
+            if s is None:
+                raise ValueError(f"{here}: signal {f.signal} (field {frame_type.__name__}.{f.name}) missing")
+            sig_where = f"{here} signal {f.signal}"
+            if s.is_float or s.byte_order != "little_endian":
+                raise ValueError(f"{sig_where}: only little-endian integer signals are supported")
+            unit = s.unit or ""
+            if f.kind == "float" and unit != f.unit:
+                raise ValueError(
+                    f"{sig_where}: unit {unit!r}, but field {frame_type.__name__}.{f.name} is in {f.unit!r}"
+                )
+            if f.kind == "bool" and (s.length != 1 or s.scale != 1 or s.offset != 0):
+                raise ValueError(f"{sig_where}: a flag must be 1 bit, (1,0)")
+            if f.kind == "enum":
+                assert f.enum is not None
+                if s.scale != 1 or s.offset != 0:
+                    raise ValueError(f"{sig_where}: an enumeration must be scaled (1,0)")
+                for value, label in (s.choices or {}).items():
+                    member = f.enum._value2member_map_.get(value)
+                    if member is None or member.name != str(label):
+                        raise ValueError(
+                            f"{sig_where}: VAL_ {value} {str(label)!r} does not match {f.enum.__name__}"
+                        )
+            lo_bits, hi_bits = _bit_range(s.length, s.is_signed)
+            minimum = s.minimum if s.minimum is not None else lo_bits * s.scale + s.offset
+            maximum = s.maximum if s.maximum is not None else hi_bits * s.scale + s.offset
+            # The range ends need not sit on the LSB grid: keep only raw values whose physical value
+            # is inside [min, max] (the 1e-6 LSB slack absorbs binary rounding of e.g. 81.91 / 0.01).
+            raw_min = math.ceil((minimum - s.offset) / s.scale - 1e-6)
+            raw_max = math.floor((maximum - s.offset) / s.scale + 1e-6)
+            if raw_min < lo_bits or raw_max > hi_bits or raw_min > raw_max:
+                raise ValueError(
+                    f"{sig_where}: range [{minimum}, {maximum}] does not fit {s.length} "
+                    f"{'signed' if s.is_signed else 'unsigned'} bits at scale {s.scale}"
+                )
+            infos_sig.append(
+                SignalInfo(
+                    field=f.name,
+                    signal=f.signal,
+                    kind=f.kind,
+                    enum=f.enum,
+                    scale=s.scale,
+                    offset=s.offset,
+                    minimum=minimum,
+                    maximum=maximum,
+                    raw_min=raw_min,
+                    raw_max=raw_max,
+                    unit=unit,
+                )
+            )
+        undecoded = sorted(sigs.keys() - {f.signal for f in fields} - {name + "_CRC", name + "_Counter"})
+        if undecoded:
+            raise ValueError(f"{here}: signals {undecoded} have no field in {frame_type.__name__}")
+        infos[msg.frame_id] = MessageInfo(
+            name=name,
+            frame_id=msg.frame_id,
+            frame_type=frame_type,
+            length=msg.length,
+            cycle_time_s=msg.cycle_time / 1000.0,
+            receivers=frozenset(msg.receivers),
+            senders=tuple(msg.senders),
+            crc_signal=name + "_CRC",
+            counter_signal=name + "_Counter",
+            signals=tuple(infos_sig),
+            message=msg,
+        )
+    return infos
+
+
+class VehicleCodec:
+    """Typed frames <-> CAN messages per the vehicle DBC (default: the packaged `vehicle.dbc`).
+
+    Loading checks that the DBC and the typed frames agree; any mismatch raises ValueError naming the
+    file, message and signal.
+    """
+
+    def __init__(self, dbc_path: Path | str | None = None) -> None:
+        self.dbc_path = Path(dbc_path) if dbc_path is not None else default_dbc_path()
+        try:
+            db = cantools.database.load_file(str(self.dbc_path), database_format="dbc", strict=True)
+        except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:
+            raise ValueError(f"{self.dbc_path}: cannot load the vehicle DBC: {exc}") from exc
+        self._by_id = _compile(db, str(self.dbc_path))
+        self._by_name = {info.name: info for info in self._by_id.values()}
+        self._by_type = {info.frame_type: info for info in self._by_id.values()}
+
+    # -- schema lookups --
+
+    @property
+    def messages(self) -> tuple[MessageInfo, ...]:
+        """All messages, in frame-id order."""
+        return tuple(self._by_id[k] for k in sorted(self._by_id))
+
+    def info(self, key: FrameKey) -> MessageInfo:
+        """The message named by a frame id, a DBC message name or a typed-frame class."""
+        found: MessageInfo | None
+        if isinstance(key, bool):
+            found = None
+        elif isinstance(key, int):
+            found = self._by_id.get(key)
+        elif isinstance(key, str):
+            found = self._by_name.get(key)
+        else:
+            found = self._by_type.get(key)
+        if found is None:
+            raise ValueError(f"{key!r} is not a message of the vehicle DBC {self.dbc_path}")
+        return found
+
+    def lookup_id(self, frame_id: int) -> MessageInfo | None:
+        """The message with standard frame id `frame_id`, or None."""
+        return self._by_id.get(frame_id)
+
+    def received_by(self, node: str) -> tuple[str, ...]:
+        """Names of the messages the DBC lists `node` (e.g. "ECU") as a receiver of."""
+        return tuple(info.name for info in self.messages if node in info.receivers)
+
+    # -- encoding --
+
+    def encode(
+        self, frame: VehicleFrame, counter: int, *, saturate: bool = False, timestamp_s: float = 0.0
+    ) -> can.Message:
+        """The CAN message for `frame` with alive `counter` (0..15) and its CRC.
+
+        Values outside the DBC range raise ValueError naming message, signal and field, unless
+        `saturate` (a simulated sensor clamps to its range like a real one). NaN always raises.
+        """
+        info = self._by_type.get(type(frame))
+        if info is None:
+            raise TypeError(f"cannot encode {type(frame).__name__}: not a vehicle-CAN frame type")
+        if isinstance(counter, bool) or not isinstance(counter, int) or not 0 <= counter < COUNTER_MODULO:
+            raise ValueError(f"{info.name}: alive counter {counter!r} outside 0..{COUNTER_MODULO - 1}")
+        raw: dict[str, int] = {info.crc_signal: 0, info.counter_signal: counter}
+        for sig in info.signals:
+            try:
+                raw[sig.signal] = _to_raw(sig, getattr(frame, sig.field), saturate)
+            except ValueError as exc:
+                where = f"{info.name}.{sig.signal} ({info.frame_type.__name__}.{sig.field})"
+                raise ValueError(f"{where}: {exc}") from None
+        data = bytearray(info.message.encode(raw, scaling=False, strict=False))
+        data[0] = e2e_crc(info.frame_id, data)
+        return can.Message(
+            timestamp=timestamp_s,
+            arbitration_id=info.frame_id,
+            is_extended_id=False,
+            dlc=info.length,
+            data=data,
+        )
+
+    # -- decoding --
+
+    def check_structure(self, msg: can.Message) -> MessageInfo:
+        """The message `msg` claims to be; FrameError(malformed) if it cannot be one of ours."""
+        frame_id = msg.arbitration_id
+        if msg.is_error_frame:
+            raise FrameError(frame_id, RejectReason.MALFORMED, "error frame")
+        if msg.is_extended_id:
+            raise FrameError(frame_id, RejectReason.MALFORMED, "extended (29-bit) id: vehicle CAN is 11-bit")
+        info = self._by_id.get(frame_id)
+        if info is None:
+            raise FrameError(frame_id, RejectReason.MALFORMED, "unknown frame id")
+        if msg.is_remote_frame:
+            raise FrameError(frame_id, RejectReason.MALFORMED, f"{info.name}: remote frame")
+        if msg.is_fd:
+            raise FrameError(frame_id, RejectReason.MALFORMED, f"{info.name}: CAN FD frame on classical CAN")
+        n = len(msg.data)
+        if n != info.length or msg.dlc != info.length:
+            raise FrameError(
+                frame_id,
+                RejectReason.MALFORMED,
+                f"{info.name}: DLC {msg.dlc} with {n} data bytes, expected {info.length}",
+            )
+        return info
+
+    def check_crc(self, info: MessageInfo, data: bytes | bytearray) -> None:
+        """FrameError(corrupt) unless byte 0 of `data` is the E2E CRC of `info`'s frame id and data."""
+        expected = e2e_crc(info.frame_id, data)
+        if data[0] != expected:
+            raise FrameError(
+                info.frame_id,
+                RejectReason.CORRUPT,
+                f"{info.name}: CRC {data[0]:#04x}, expected {expected:#04x}",
+            )
+
+    def decode_payload(self, info: MessageInfo, data: bytes | bytearray) -> tuple[VehicleFrame, int]:
+        """(typed frame, alive counter) of a structurally valid payload; FrameError(malformed) if a
+        value lies outside its DBC range or names no enum member. The CRC is not checked here."""
+        raw = info.message.decode(bytes(data), decode_choices=False, scaling=False)
+        values: dict[str, object] = {}
+        for sig in info.signals:
+            r = raw[sig.signal]
+            if not sig.raw_min <= r <= sig.raw_max:
+                raise FrameError(
+                    info.frame_id,
+                    RejectReason.MALFORMED,
+                    f"{info.name}.{sig.signal} = {r * sig.scale + sig.offset:g} {sig.unit} (raw {r}) "
+                    f"outside the DBC range [{sig.minimum:g}, {sig.maximum:g}]",
+                )
+            if sig.kind == "float":
+                values[sig.field] = r * sig.scale + sig.offset
+            elif sig.kind == "bool":
+                values[sig.field] = bool(r)
+            else:
+                assert sig.enum is not None
+                member = sig.enum._value2member_map_.get(r)
+                if member is None:
+                    raise FrameError(
+                        info.frame_id,
+                        RejectReason.MALFORMED,
+                        f"{info.name}.{sig.signal} = {r} is not a {sig.enum.__name__}",
+                    )
+                values[sig.field] = member
+        return info.frame_type(**values), raw[info.counter_signal]
+
+    def decode(self, msg: can.Message) -> VehicleFrame:
+        """The typed frame in `msg`, checking structure, CRC and DBC ranges (not the counter or age:
+        that needs receiver state, see `VehicleRx`). Raises FrameError(frame_id, reason, detail)."""
+        info = self.check_structure(msg)
+        self.check_crc(info, msg.data)
+        return self.decode_payload(info, msg.data)[0]
+
+
+def _to_raw(sig: SignalInfo, value: object, saturate: bool) -> int:
+    """The raw integer for a field value; ValueError (without the where, see `encode`) if invalid."""
+    if sig.kind == "bool":
+        if value not in (0, 1):
+            raise ValueError(f"{value!r} is not a flag (bool)")
+        return 1 if value else 0
+    if sig.kind == "enum":
+        assert sig.enum is not None
+        if isinstance(value, IntEnum) and not isinstance(value, sig.enum):
+            raise ValueError(f"{value!r} is not a {sig.enum.__name__}")
+        try:
+            member = sig.enum(value)  # type: ignore[arg-type]
+        except ValueError:
+            raise ValueError(f"{value!r} is not a {sig.enum.__name__}") from None
+        if not sig.raw_min <= member.value <= sig.raw_max:
+            raise ValueError(f"{member!r} does not fit the DBC range")
+        return int(member.value)
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{value!r} is not a number") from None
+    if math.isnan(v):
+        raise ValueError("NaN")
+    scaled = (v - sig.offset) / sig.scale
+    if saturate:
+        return round(min(max(scaled, sig.raw_min), sig.raw_max))
+    raw = round(scaled) if math.isfinite(scaled) else None
+    if raw is None or not sig.raw_min <= raw <= sig.raw_max:
+        raise ValueError(f"{v} {sig.unit} outside the DBC range [{sig.minimum:g}, {sig.maximum:g}]")
+    return raw
+
+
+class VehicleTx:
+    """A sender's side: encodes typed frames with the next alive counter of each message."""
+
+    def __init__(self, codec: VehicleCodec | None = None) -> None:
+        self.codec = codec if codec is not None else VehicleCodec()
+        self.counters = TxCounter()
+
+    def encode(self, frame: VehicleFrame, *, saturate: bool = False, timestamp_s: float = 0.0) -> can.Message:
+        """`codec.encode` with this sender's next counter for the frame's message; a frame that
+        fails to encode does not use up a counter value."""
+        frame_id = self.codec.info(type(frame)).frame_id
+        msg = self.codec.encode(
+            frame, self.counters.peek(frame_id), saturate=saturate, timestamp_s=timestamp_s
+        )
+        self.counters.next(frame_id)
+        return msg
+
+
+# -- the receiver -----------------------------------------------------------------------------------
+
+_OUTCOMES: Final = ("accepted", "ignored", *(r.value for r in RejectReason))
+_COUNTERS: Final = (*_OUTCOMES, "lost", "resync")
+
+
+def _zero_counts() -> dict[str, int]:
+    return dict.fromkeys(_COUNTERS, 0)
+
+
+@dataclass(slots=True)
+class _RxState:
+    info: MessageInfo
+    subscribed: bool
+    counts: dict[str, int] = field(default_factory=_zero_counts)
+    last_counter: int | None = None
+    last_frame: VehicleFrame | None = None
+    last_time_s: float | None = None
+    error_streak: int = 0
+    last_reject: tuple[str, str, float] | None = None  # (reason, detail, now_s)
+
+
+class RxMonitor:
+    """One message's receiver state seen through attributes only: the ECU reads a handful of these
+    every millisecond, and a name lookup per read would cost more than the reads themselves."""
+
+    __slots__ = ("_state", "timeout_s")
+
+    def __init__(self, state: _RxState, timeout_s: float) -> None:
+        self._state = state
+        self.timeout_s = timeout_s
+
+    @property
+    def last(self) -> VehicleFrame | None:
+        return self._state.last_frame
+
+    @property
+    def error_streak(self) -> int:
+        return self._state.error_streak
+
+    def timed_out(self, now_s: float) -> bool:
+        t = self._state.last_time_s
+        return t is None or now_s - t > self.timeout_s
+
+
+class VehicleRx:
+    """A receiver's E2E monitor: `feed(msg, now_s)` returns the typed frame, or None if rejected.
+
+    Per message (`FrameKey`: frame id, DBC name or typed-frame class) it keeps the last accepted
+    frame and the receiver time `now_s` at which it was accepted, counts every outcome, and derives
+    the timeout from the DBC's GenMsgCycleTime (`timeout_cycles` cycles, default 5). Check order:
+    subscription (ignored) -> structure (malformed) -> CRC (corrupt) -> age (stale) -> DBC ranges
+    (malformed) -> alive counter (repeated, out_of_order); each frame counts exactly one of these
+    outcomes or `accepted` (accepted frames may also add to `lost` and `resync`). After a timeout the
+    next frame that passes everything but the counter check is accepted as a re-sync, as AUTOSAR E2E
+    does.
+
+    Age: a frame's receive time is `rx_time_s` if given, else `msg.timestamp`, and must be on the
+    same clock as `now_s` (stamp frames with `clock.now()` when sending in SIL, and keep the bus's
+    timestamps, e.g. python-can virtual with `preserve_timestamps=True`). A frame older than
+    `max_age_cycles` cycle times, or stamped that far in the future (a clock mismatch: its age cannot
+    be known), is stale. `max_age_cycles=None` turns the age check off.
+
+    `accept` limits the messages this receiver uses (names, ids or classes; default: all); frames of
+    other DBC messages are counted as `ignored`. `VehicleRx.for_node(codec, "ECU")` accepts what the
+    DBC says that node receives. Frames with unknown or extended ids are counted only in the totals.
+    """
+
+    def __init__(
+        self,
+        codec: VehicleCodec | None = None,
+        *,
+        accept: Iterable[FrameKey] | None = None,
+        timeout_cycles: float = DEFAULT_TIMEOUT_CYCLES,
+        max_age_cycles: float | None = DEFAULT_MAX_AGE_CYCLES,
+        max_delta_counter: int = DEFAULT_MAX_DELTA_COUNTER,
+    ) -> None:
+        self.codec = codec if codec is not None else VehicleCodec()
+        if not timeout_cycles > 0:
+            raise ValueError(f"VehicleRx: timeout_cycles {timeout_cycles} must be > 0")
+        if max_age_cycles is not None and not max_age_cycles > 0:
+            raise ValueError(f"VehicleRx: max_age_cycles {max_age_cycles} must be > 0 or None")
+        check_counter(None, 0, max_delta=max_delta_counter)  # validates max_delta
+        self.timeout_cycles = timeout_cycles
+        self.max_age_cycles = max_age_cycles
+        self.max_delta_counter = max_delta_counter
+        wanted = None if accept is None else {self.codec.info(k).frame_id for k in accept}
+        self._state = {
+            info.frame_id: _RxState(info, wanted is None or info.frame_id in wanted)
+            for info in self.codec.messages
+        }
+        self._total = _zero_counts()
+        self._unexpected = 0
+        self._last_unexpected: str | None = None
+        self._unknown_ids: dict[str, int] = {}
+        self._by_key: dict[FrameKey, _RxState] = {}
+
+    @classmethod
+    def for_node(cls, codec: VehicleCodec, node: str, **kwargs: Any) -> VehicleRx:
+        """A receiver accepting the messages the DBC lists `node` as a receiver of."""
+        names = codec.received_by(node)
+        if not names:
+            raise ValueError(f"{codec.dbc_path}: node {node!r} receives no message")
+        return cls(codec, accept=names, **kwargs)
+
+    # -- receiving --
+
+    def feed(self, msg: can.Message, now_s: float, rx_time_s: float | None = None) -> VehicleFrame | None:
+        """The typed frame if `msg` is accepted, else None. Never raises on any frame content."""
+        try:
+            return self._feed(msg, now_s, rx_time_s)
+        except Exception as exc:  # a bus frame must never take the receiver down
+            self._unexpected += 1
+            self._last_unexpected = f"{type(exc).__name__}: {exc}"
+            self._count(None, "malformed", self._last_unexpected, now_s)
+            return None
+
+    def _feed(self, msg: can.Message, now_s: float, rx_time_s: float | None) -> VehicleFrame | None:
+        frame_id = msg.arbitration_id
+        state = None if msg.is_extended_id else self._state.get(frame_id)
+        if state is not None and not state.subscribed:
+            self._count(state, "ignored", "", now_s)
+            return None
+        try:
+            info = self.codec.check_structure(msg)
+            self.codec.check_crc(info, msg.data)
+        except FrameError as err:
+            if state is None:
+                self._note_unknown(msg)
+            self._count(state, err.reason.value, err.detail, now_s)
+            return None
+        assert state is not None
+        cycle_s = info.cycle_time_s
+        if self.max_age_cycles is not None:
+            max_age_s = self.max_age_cycles * cycle_s
+            rx_s = msg.timestamp if rx_time_s is None else rx_time_s
+            age_s = now_s - rx_s
+            if not -max_age_s <= age_s <= max_age_s:  # NaN stamps fail too
+                if age_s > 0:
+                    detail = f"{info.name}: received {age_s * 1e3:.1f} ms ago, max {max_age_s * 1e3:.1f} ms"
+                elif age_s < 0:
+                    detail = (
+                        f"{info.name}: receive time {rx_s} is {-age_s:.3g} s after now {now_s}: "
+                        "frames must be stamped on the receiver's clock"
+                    )
+                else:
+                    detail = f"{info.name}: receive time {rx_s} or now {now_s} is not a number"
+                self._count(state, "stale", detail, now_s)
+                return None
+        try:
+            frame, counter = self.codec.decode_payload(info, msg.data)
+        except FrameError as err:
+            self._count(state, err.reason.value, err.detail, now_s)
+            return None
+        timed_out = (
+            state.last_time_s is not None and now_s - state.last_time_s > self.timeout_cycles * cycle_s
+        )
+        status, lost = check_counter(
+            state.last_counter, counter, timed_out=timed_out, max_delta=self.max_delta_counter
+        )
+        if not status.accepted:
+            self._count(
+                state, status.value, f"{info.name}: counter {counter} after {state.last_counter}", now_s
+            )
+            return None
+        state.last_counter = counter
+        state.last_frame = frame
+        state.last_time_s = now_s
+        self._count(state, "accepted", "", now_s)
+        if lost:
+            state.counts["lost"] += lost
+            self._total["lost"] += lost
+        if status is CounterStatus.RESYNC:
+            state.counts["resync"] += 1
+            self._total["resync"] += 1
+        return frame
+
+    def _count(self, state: _RxState | None, outcome: str, detail: str, now_s: float) -> None:
+        self._total[outcome] += 1
+        if state is None:
+            return
+        state.counts[outcome] += 1
+        if outcome == "accepted":
+            state.error_streak = 0
+        elif outcome != "ignored":
+            state.error_streak += 1
+            state.last_reject = (outcome, detail, now_s)
+
+    def _note_unknown(self, msg: can.Message) -> None:
+        key = f"{msg.arbitration_id:#x}" + ("x" if msg.is_extended_id else "")
+        if key in self._unknown_ids or len(self._unknown_ids) < UNKNOWN_IDS_KEPT:
+            self._unknown_ids[key] = self._unknown_ids.get(key, 0) + 1
+
+    # -- per-message state --
+
+    def _get(self, key: FrameKey) -> _RxState:
+        # The ECU asks for the same few messages every millisecond: resolve each key once.
+        state = self._by_key.get(key)
+        if state is None:
+            state = self._state[self.codec.info(key).frame_id]
+            self._by_key[key] = state
+        return state
+
+    def monitor(self, key: FrameKey) -> RxMonitor:
+        """A live read-only view of one message's receiver state, for loops that poll it every cycle."""
+        return RxMonitor(self._get(key), self.timeout_cycles * self._get(key).info.cycle_time_s)
+
+    def last(self, key: FrameKey) -> VehicleFrame | None:
+        """The last accepted frame of the message, or None."""
+        return self._get(key).last_frame
+
+    def last_time_s(self, key: FrameKey) -> float | None:
+        """The receiver time (`now_s` of `feed`) at which the last frame was accepted, or None."""
+        return self._get(key).last_time_s
+
+    def age_s(self, key: FrameKey, now_s: float) -> float:
+        """Seconds since the last accepted frame of the message; inf if none yet."""
+        t = self._get(key).last_time_s
+        return math.inf if t is None else now_s - t
+
+    def timeout_s(self, key: FrameKey) -> float:
+        """The message's timeout: `timeout_cycles` x its DBC GenMsgCycleTime."""
+        return self.timeout_cycles * self._get(key).info.cycle_time_s
+
+    def timed_out(self, key: FrameKey, now_s: float) -> bool:
+        """True if no frame was accepted yet, or the last one is older than `timeout_s`."""
+        state = self._get(key)
+        t = state.last_time_s
+        return t is None or now_s - t > self.timeout_cycles * state.info.cycle_time_s
+
+    def error_streak(self, key: FrameKey) -> int:
+        """Frames of the message rejected in a row since the last accepted one (ignored ones aside)."""
+        return self._get(key).error_streak
+
+    def counts(self, key: FrameKey | None = None) -> Mapping[str, int]:
+        """Counters of one message, or the totals: accepted, ignored, each RejectReason, lost, resync."""
+        return dict(self._total if key is None else self._get(key).counts)
+
+    @property
+    def unexpected_exceptions(self) -> int:
+        """Frames that raised inside the receiver (counted as malformed); a bug indicator, should be 0."""
+        return self._unexpected
+
+    def stats(self) -> dict[str, Any]:
+        """JSON-able report: totals, per message counters and state, unknown ids seen."""
+        frames = {}
+        for fid in sorted(self._state):
+            st = self._state[fid]
+            frames[st.info.name] = {
+                "frame_id": fid,
+                "subscribed": st.subscribed,
+                **st.counts,
+                "error_streak": st.error_streak,
+                "last_counter": st.last_counter,
+                "last_accepted_s": st.last_time_s,
+                "last_reject": None
+                if st.last_reject is None
+                else {"reason": st.last_reject[0], "detail": st.last_reject[1], "t_s": st.last_reject[2]},
+            }
+        return {
+            "total": {**self._total, "unexpected_exceptions": self._unexpected},
+            "last_unexpected_exception": self._last_unexpected,
+            "frames": frames,
+            "unknown_ids": dict(self._unknown_ids),
+        }
+
+
+FrameMonitor = VehicleRx
