@@ -408,7 +408,13 @@ class VehicleCodec:
     def __init__(self, dbc_path: Path | str | None = None) -> None:
         self.dbc_path = Path(dbc_path) if dbc_path is not None else default_dbc_path()
         try:
-            db = cantools.database.load_file(str(self.dbc_path), database_format="dbc", strict=True)
+            # Read through importlib.resources: inside the firmware zipapp the DBC is not a file.
+            resource = (
+                resources.files("bywire.protocol").joinpath("vehicle.dbc") if dbc_path is None else self.dbc_path
+            )
+            db = cantools.database.load_string(
+                resource.read_text(encoding="utf-8"), database_format="dbc", strict=True
+            )
         except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:
             raise ValueError(f"{self.dbc_path}: cannot load the vehicle DBC: {exc}") from exc
         self._by_id = _compile(db, str(self.dbc_path))

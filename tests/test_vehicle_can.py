@@ -292,7 +292,7 @@ def forged(frame_type: type, set_raw: dict[str, int], counter: int = 0) -> can.M
 @pytest.mark.parametrize(
     ("frame_type", "raw", "match"),
     [
-        (DbwCommand, {"EcuState": 7}, r"DBW_Command\.EcuState = 7 is not a EcuState"),
+        (DbwCommand, {"EcuState": 7}, r"DBW_Command\.EcuState = 7 .*outside the DBC range \[0, 6\]"),
         (DbwCommand, {"ThrottlePedal": 1023}, r"DBW_Command\.ThrottlePedal = 102\.3 % \(raw 1023\) outside"),
         (
             DbwCommand,
@@ -505,7 +505,7 @@ def test_age_check_can_be_turned_off() -> None:
         (lambda m: with_data(m, m.data, is_remote_frame=True), "remote frame"),
         (lambda m: with_data(m, m.data, is_fd=True), "CAN FD"),
         (lambda m: with_data(m, m.data, is_error_frame=True), "error frame"),
-        (lambda m: forged(DbwCommand, {"EcuState": 7}), "is not a EcuState"),
+        (lambda m: forged(DbwCommand, {"EcuState": 7}), "outside the DBC range [0, 6]"),
     ],
 )
 def test_malformed_frames_of_a_known_id_count_per_id(make: Any, match: str) -> None:
