@@ -1,0 +1,315 @@
+"""The ECU's pure core: one function from (state, inputs, time, calibration) to (state, commands).
+
+Paper: seed 003 Sec. II-d and V-B (actuator control, driver intervention handling, fail-safe
+functions and the low-level acceleration controller on the real-time computer); DARPA rules
+3.4.2 for the stops; DESIGN section 4. The cyclic executive calls `core_step` every millisecond;
+SIL calls the same function on a simulated clock. Nothing here reads a clock, a bus or a file.
+
+What each state commands (`ActuatorCommand`):
+
+- OFF, READY, MANUAL: passive. engage off, no throttle, no brake, no steering; the controller is
+  reset and follows the measured acceleration and steering angle so that engaging is bumpless.
+- ENGAGED: the host's request through the acceleration controller (clamp, jerk limit, feedforward
+  maps, integrator); steering clamped and rate-limited while the STEER flag is set.
+- PAUSED, SAFE_STOP, DISABLED (stops): the controller's target goes, jerk-limited, to -d with
+  d = pause_decel (PAUSED), safe_stop_decel (SAFE_STOP) or disable_decel (DISABLED), the largest
+  that applies (a SAFE_STOP while the radio says PAUSE stops at least as hard as a pause), and
+  never less than earlier in the same stop (PAUSED -> SAFE_STOP keeps the pause's d). A stop
+  never uses the throttle (propulsion never helps a stop; DARPA 3.4.2 "shuts down all
+  propulsion" for DISABLE). Steering keeps its last commanded angle if it was enabled when the
+  stop began in ENGAGED. DISABLED at standstill also turns the ignition off and sets the park
+  brake; steering is released with the ignition.
+
+The hold. A stop latches into the hold (hold_brake_bar, until the state changes) when the
+measured speed falls below standstill_speed, and at the latest at the deadline fixed when the
+stop begins:
+
+    T = (a0 + d) / j + (v0 + max(a0, 0)^2 / (2 j)) / d + stop_margin_s
+
+(`stop_time_bound_s`; v0 the speed and a0 the controller's target when the stop began, j =
+jerk_max): the jerk ramp from a0 to -d, the time to lose v0 plus what the ramp can still add at
+d, and a margin for the integrator to correct the maps. So every stop holds within T whatever
+the car does; if it is still rolling then (a brake weaker than calibrated, a slope steeper than
+the integrator covers) the hold pressure takes over.
+
+Stops without vehicle data (timeout, corruption) run open loop on the brake feedforward, the
+speed for the maps estimated from the last trusted speed (measured at most
+BLIND_SPEED_MAX_AGE_S before, else the top of the calibrated speed range as v0) integrated with
+the jerk-limited target. Standstill cannot be measured, so they hold at the deadline T: the
+ECU "assumes standstill after v0/d + margin" (plus the ramp).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from bywire.ecu.accel_controller import (
+    ControllerState,
+    PedalMode,
+    controller_passive,
+    controller_step,
+    initial_controller_state,
+    steer_step,
+    step_dt_s,
+)
+from bywire.ecu.calibration import Calibration, fast_frozen_init
+from bywire.ecu.safety import (
+    STOP_STATES,
+    EcuInputs,
+    SafetyState,
+    initial_safety_state,
+    safety_step,
+    vehicle_usable,
+)
+from bywire.protocol.ecu_types import EcuState, Fault, RequestFlags
+
+__all__ = [
+    "BLIND_SPEED_MAX_AGE_S",
+    "ActuatorCommand",
+    "CoreState",
+    "EcuInputs",
+    "core_step",
+    "initial_core_state",
+    "stop_decel_mps2",
+    "stop_time_bound_s",
+]
+
+# A blind stop trusts the last measured speed only if it is this recent; older, the car may have
+# sped up since (a driver in READY) and the top of the calibrated speed range is assumed.
+BLIND_SPEED_MAX_AGE_S = 1.0
+
+_STEER = int(RequestFlags.STEER)
+_HOLD, _NONE = PedalMode.HOLD, PedalMode.NONE
+_ESTOP_PAUSE = int(Fault.ESTOP_PAUSE)
+_ENGAGED = EcuState.ENGAGED
+_PAUSED = EcuState.PAUSED
+_DISABLED = EcuState.DISABLED
+_INF = math.inf
+
+# Fault(int) costs 1-2 us (enum machinery); the few combinations that occur are cached.
+_FAULTS: dict[int, Fault] = {}
+
+
+def _fault(bits: int) -> Fault:
+    f = _FAULTS.get(bits)
+    if f is None:
+        f = _FAULTS[bits] = Fault(bits)
+    return f
+
+
+@fast_frozen_init
+@dataclass(frozen=True, slots=True)
+class ActuatorCommand:
+    """The core's output for one cycle: the DBW_Command frame's content plus diagnostics."""
+
+    state: EcuState
+    faults_active: Fault  # this cycle's fault conditions
+    faults_latched: Fault  # the cause of the current state
+    throttle_pct: float  # 0..100
+    brake_bar: float  # 0..200
+    steer_angle_rad: float  # road wheel, + left; within +-steer_max_rad
+    engage: bool  # the gateway applies our commands (else passes the driver through)
+    steer_enable: bool
+    ignition: bool
+    park_brake: bool
+    accel_target_mps2: float  # jerk-limited target
+    accel_cmd_mps2: float  # what the pedal maps were asked for (target + integrator)
+    integrator_mps2: float
+    pedal: PedalMode
+    holding: bool  # a stop has reached standstill and holds
+
+
+@fast_frozen_init
+@dataclass(frozen=True, slots=True)
+class CoreState:
+    safety: SafetyState
+    controller: ControllerState
+    steer_angle_rad: float  # last commanded road-wheel angle
+    steer_enable: bool  # last cycle's steer_enable
+    holding: bool  # the current stop holds at standstill
+    blind: bool  # the current stop runs without usable vehicle data
+    speed_est_mps: float  # last trusted speed; during a blind stop the open-loop estimate
+    speed_trusted_t_s: float  # when the speed was last measured (-inf: never)
+    stop_decel_mps2: float  # the current stop's deceleration (the largest cause so far)
+    stop_deadline_s: float  # the current stop holds at the latest then (inf: no stop)
+
+
+def initial_core_state(now_s: float) -> CoreState:
+    """The state at boot: OFF, passive, speed unknown."""
+    return CoreState(
+        safety=initial_safety_state(),
+        controller=initial_controller_state(now_s),
+        steer_angle_rad=0.0,
+        steer_enable=False,
+        holding=False,
+        blind=False,
+        speed_est_mps=0.0,
+        speed_trusted_t_s=-_INF,
+        stop_decel_mps2=0.0,
+        stop_deadline_s=_INF,
+    )
+
+
+def stop_decel_mps2(state: EcuState, active: Fault | int, cal: Calibration) -> float:
+    """The deceleration a stop in `state` aims for (the largest of the causes that apply)."""
+    if state == _DISABLED:
+        d = cal.disable_decel_mps2
+    elif state == _PAUSED:
+        d = cal.pause_decel_mps2
+    else:
+        d = cal.safe_stop_decel_mps2
+    if int(active) & _ESTOP_PAUSE and cal.pause_decel_mps2 > d:
+        d = cal.pause_decel_mps2
+    return d
+
+
+def stop_time_bound_s(
+    speed_mps: float, accel_target_mps2: float, decel_mps2: float, cal: Calibration
+) -> float:
+    """The stop deadline T: a stop that begins at speed_mps with the controller's target at
+    accel_target_mps2 and decelerates at decel_mps2 holds at the latest T seconds later (see the
+    module docstring)."""
+    j = cal.jerk_max_mps3
+    a0 = min(max(accel_target_mps2, cal.accel_min_mps2), cal.accel_max_mps2)
+    ramp_s = max(a0 + decel_mps2, 0.0) / j
+    v_peak = max(speed_mps, 0.0) + (a0 * a0 / (2.0 * j) if a0 > 0.0 else 0.0)
+    return ramp_s + v_peak / decel_mps2 + cal.stop_margin_s
+
+
+def _clamp_steer(x: float, prev: float, cal: Calibration) -> float:
+    if not math.isfinite(x):
+        return prev
+    lim = cal.steer_max_rad
+    return lim if x > lim else (-lim if x < -lim else x)
+
+
+def core_step(
+    st: CoreState, inp: EcuInputs, now_s: float, cal: Calibration
+) -> tuple[CoreState, ActuatorCommand]:
+    """One ECU cycle. `cal` must always be a Calibration: with `inp.calibration_valid` False the
+    executive passes its fallback (default_calibration()) and the core stops or stays OFF."""
+    saf, active = safety_step(st.safety, inp, cal)
+    s = saf.state
+    ok = vehicle_usable(inp)
+    if ok:
+        v_est, trusted_t = inp.speed_mps, now_s
+    else:
+        v_est, trusted_t = st.speed_est_mps, st.speed_trusted_t_s
+
+    if s == _ENGAGED:
+        ctl, out = controller_step(
+            st.controller,
+            now_s=now_s,
+            accel_request_mps2=inp.request_accel_mps2,
+            accel_meas_mps2=inp.accel_meas_mps2,
+            speed_mps=inp.speed_mps,
+            closed_loop=True,
+            throttle_allowed=True,
+            hold=False,
+            cal=cal,
+        )
+        if int(inp.request_flags) & _STEER:
+            dt = step_dt_s(st.controller.t_s, now_s)
+            steer, steer_en = steer_step(st.steer_angle_rad, inp.request_steer_angle_rad, dt, cal), True
+        else:
+            steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
+        new = CoreState(saf, ctl, steer, steer_en, False, False, v_est, trusted_t, 0.0, _INF)
+        cmd = ActuatorCommand(
+            state=s,
+            faults_active=_fault(active),
+            faults_latched=saf.latched,
+            throttle_pct=out.throttle_pct,
+            brake_bar=out.brake_bar,
+            steer_angle_rad=steer,
+            engage=True,
+            steer_enable=steer_en,
+            ignition=True,
+            park_brake=False,
+            accel_target_mps2=out.accel_target_mps2,
+            accel_cmd_mps2=out.accel_cmd_mps2,
+            integrator_mps2=out.integrator_mps2,
+            pedal=out.pedal,
+            holding=False,
+        )
+        return new, cmd
+
+    if s in STOP_STATES:
+        entering = st.safety.state not in STOP_STATES
+        blind = not ok
+        if blind and (entering or not st.blind) and now_s - trusted_t > BLIND_SPEED_MAX_AGE_S:
+            v_est = cal.throttle_map.speed_mps[-1]
+        # A stop never softens: PAUSED -> SAFE_STOP keeps the pause's deceleration.
+        decel = stop_decel_mps2(s, active, cal)
+        if entering:
+            holding = False
+            deadline = now_s + stop_time_bound_s(v_est, st.controller.accel_target_mps2, decel, cal)
+        else:
+            holding = st.holding
+            deadline = st.stop_deadline_s
+            if st.stop_decel_mps2 > decel:
+                decel = st.stop_decel_mps2
+        if (ok and inp.speed_mps < cal.standstill_speed_mps) or now_s >= deadline:
+            holding = True
+        ctl, out = controller_step(
+            st.controller,
+            now_s=now_s,
+            accel_request_mps2=-decel,
+            accel_meas_mps2=inp.accel_meas_mps2 if ok else 0.0,
+            speed_mps=inp.speed_mps if ok else v_est,
+            closed_loop=ok,
+            throttle_allowed=False,
+            hold=holding,
+            cal=cal,
+        )
+        if blind and not holding:
+            v_est += out.accel_target_mps2 * step_dt_s(st.controller.t_s, now_s)
+            if v_est < 0.0:
+                v_est = 0.0
+        off = s == _DISABLED and holding
+        if st.steer_enable and not off:
+            steer, steer_en = st.steer_angle_rad, True
+        else:
+            steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
+        new = CoreState(saf, ctl, steer, steer_en, holding, blind, v_est, trusted_t, decel, deadline)
+        cmd = ActuatorCommand(
+            state=s,
+            faults_active=_fault(active),
+            faults_latched=saf.latched,
+            throttle_pct=0.0,
+            brake_bar=out.brake_bar,
+            steer_angle_rad=steer,
+            engage=True,
+            steer_enable=steer_en,
+            ignition=not off,
+            park_brake=off,
+            accel_target_mps2=out.accel_target_mps2,
+            accel_cmd_mps2=out.accel_cmd_mps2,
+            integrator_mps2=out.integrator_mps2,
+            pedal=out.pedal,
+            holding=out.pedal == _HOLD,
+        )
+        return new, cmd
+
+    # OFF, READY, MANUAL: hands off.
+    ctl = controller_passive(now_s, inp.accel_meas_mps2 if ok else 0.0, cal)
+    steer = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal)
+    new = CoreState(saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF)
+    cmd = ActuatorCommand(
+        state=s,
+        faults_active=_fault(active),
+        faults_latched=saf.latched,
+        throttle_pct=0.0,
+        brake_bar=0.0,
+        steer_angle_rad=steer,
+        engage=False,
+        steer_enable=False,
+        ignition=True,
+        park_brake=False,
+        accel_target_mps2=ctl.accel_target_mps2,
+        accel_cmd_mps2=ctl.accel_target_mps2,
+        integrator_mps2=0.0,
+        pedal=_NONE,
+        holding=False,
+    )
+    return new, cmd
