@@ -37,6 +37,7 @@ from typing import Any, Final, Literal
 import can
 import cantools
 import cantools.database
+
 from bywire.protocol.e2e import (
     COUNTER_MODULO,
     DEFAULT_MAX_DELTA_COUNTER,
@@ -410,7 +411,9 @@ class VehicleCodec:
         try:
             # Read through importlib.resources: inside the firmware zipapp the DBC is not a file.
             resource = (
-                resources.files("bywire.protocol").joinpath("vehicle.dbc") if dbc_path is None else self.dbc_path
+                resources.files("bywire.protocol").joinpath("vehicle.dbc")
+                if dbc_path is None
+                else self.dbc_path
             )
             db = cantools.database.load_string(
                 resource.read_text(encoding="utf-8"), database_format="dbc", strict=True

@@ -5,6 +5,9 @@ from __future__ import annotations
 import itertools
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
 from bywire.protocol.e2e import (
     COUNTER_MODULO,
     CounterStatus,
@@ -17,8 +20,6 @@ from bywire.protocol.e2e import (
     protect,
     read_counter,
 )
-from hypothesis import given
-from hypothesis import strategies as st
 
 # AUTOSAR SWS CRC Library, CRC8 SAE J1850 check values, and the CRC catalogue's check string.
 J1850_VECTORS = [

@@ -11,12 +11,12 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from bywire.ecu.executive import CycleStats, CyclicExecutive
-from bywire.ecu.realtime import apply_realtime
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bywire.clock import SimClock, WallClock
+from bywire.ecu.executive import CycleStats, CyclicExecutive
+from bywire.ecu.realtime import apply_realtime
 
 PERIOD_S = 0.001
 

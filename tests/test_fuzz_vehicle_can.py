@@ -12,10 +12,11 @@ from collections import Counter, deque
 from typing import Any
 
 import can
-from bywire.protocol.e2e import crc_ok
-from bywire.protocol.vehicle_can import RejectReason, VehicleCodec, VehicleFrame, VehicleRx, VehicleTx
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from bywire.protocol.e2e import crc_ok
+from bywire.protocol.vehicle_can import RejectReason, VehicleCodec, VehicleFrame, VehicleRx, VehicleTx
 
 CODEC = VehicleCodec()
 KNOWN_IDS = [m.frame_id for m in CODEC.messages]

@@ -9,6 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from bywire.host.longitudinal import (
     MPH10_MPS,
     LeadObservation,
@@ -21,8 +24,6 @@ from bywire.host.longitudinal import (
     stopping_accel,
     stopping_required_decel,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 PARAMS = LongitudinalParams()
 CONTROL_DT_S = 0.02  # the host agent's 50 Hz

@@ -12,6 +12,9 @@ from typing import Any
 
 import can
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
 from bywire.protocol.e2e import protect
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.protocol.vehicle_can import (
@@ -31,8 +34,6 @@ from bywire.protocol.vehicle_can import (
     WheelSpeeds,
     default_dbc_path,
 )
-from hypothesis import given
-from hypothesis import strategies as st
 
 CODEC = VehicleCodec()  # loading is pure; one instance keeps hypothesis examples fast
 

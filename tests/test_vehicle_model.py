@@ -12,6 +12,13 @@ from pathlib import Path
 
 import fmpy
 import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+from fmpy.validation import validate_fmu
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from bywire.vehicle_models import (
     BuildError,
     FmuError,
@@ -27,12 +34,6 @@ from bywire.vehicle_models import (
 )
 from bywire.vehicle_models import build as build_module
 from bywire.vehicle_models.build import MODELS_DIR
-from fmpy import read_model_description
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
-from fmpy.validation import validate_fmu
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 M_KG = 1650.0
 G = 9.81
