@@ -1,0 +1,3 @@
+from bywire.cli import main
+
+raise SystemExit(main())

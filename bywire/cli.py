@@ -1,0 +1,193 @@
+"""The `bywire` command: one entry point for the ECU, the host, the HIL plant/runner and the tools.
+
+Subcommands import their subsystem lazily, so `bywire ecu run` loads only the firmware and the
+protocol (the ECU never imports host or HIL code), and `--help` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def _hil_run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -> None:
+    if scenario_required:
+        p.add_argument(
+            "scenario", help="a shipped scenario's bare name (see `bywire hil list`) or a scenario file"
+        )
+    p.add_argument(
+        "--mode",
+        choices=("sil", "hil"),
+        default=None,
+        help="sil: one process on simulated time; hil: plant, ECU and host as real processes "
+        "on a loopback virtual bus (default: hil for the demo, sil otherwise)",
+    )
+    p.add_argument("--json", type=Path, help="write the verdict and metrics as JSON to this file")
+    p.add_argument("--report", type=Path, help="directory for the report: plots, traces, logs, JSON")
+    p.add_argument("--record", type=Path, help="record every frame (python-can log: .log .asc .blf .csv)")
+    p.add_argument(
+        "--host-link",
+        choices=("remote", "udp"),
+        default="remote",
+        help="HIL host<->ECU link: a second virtual CAN bus, or CAN frames over UDP (Ethernet)",
+    )
+    p.add_argument(
+        "--ecu-store", type=Path, help="HIL: boot the ECU from this flashed store (bywire ecu flash)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="bywire", description=__doc__.splitlines()[0])
+    from bywire import __version__
+
+    parser.add_argument("--version", action="version", version=f"bywire {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sub.add_parser(
+        "ecu", help="the ECU firmware: run, flash, unlatch (see `bywire ecu --help`)", add_help=False
+    )
+
+    host = sub.add_parser("host", help="the host agent").add_subparsers(dest="host_command", required=True)
+    from bywire.host import main as host_main  # light: argparse-only at import time
+
+    host_main.add_arguments(host.add_parser("run", help="run the host agent against an ECU"))
+
+    hil = sub.add_parser("hil", help="hardware-in-the-loop and software-in-the-loop runs")
+    hil_sub = hil.add_subparsers(dest="hil_command", required=True)
+    _hil_run_arguments(hil_sub.add_parser("run", help="run one scenario and judge it"))
+    _hil_run_arguments(hil_sub.add_parser("demo", help="the three-process HIL demo with its report"), False)
+    hil_sub.add_parser("list", help="list the shipped scenarios")
+    from bywire.hil import plant_main
+
+    plant_main.add_arguments(hil_sub.add_parser("plant", help="(internal) the plant process of a HIL run"))
+
+    bench = sub.add_parser("bench", help="benchmarks").add_subparsers(dest="bench_command", required=True)
+    be = bench.add_parser("ecu", help="ECU loop timing with plant and host running (three-process HIL)")
+    be.add_argument("--seconds", type=float, default=20.0, help="how long to measure (default 20)")
+    be.add_argument("--json", type=Path, help="write the loop statistics as JSON")
+    be.add_argument("--report", type=Path, help="directory for the run's logs and traces")
+
+    bus = sub.add_parser("bus", help="virtual CAN buses").add_subparsers(dest="bus_command", required=True)
+    serve = bus.add_parser("serve", help="serve a python-can virtual bus to other processes on loopback")
+    serve.add_argument("--port", type=int, default=54701)
+    serve.add_argument("--channel", default="bywire", help="virtual channel name")
+    serve.add_argument("--host", default="127.0.0.1", help="listen address (keep it on loopback)")
+    serve.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="SCHED_FIFO priority for the server (0: normal scheduling); the HIL runner uses 75",
+    )
+
+    proto = sub.add_parser("protocol", help="protocol tools").add_subparsers(
+        dest="protocol_command", required=True
+    )
+    table = proto.add_parser("table", help="print the protocol table generated from the DBC and the EDS")
+    table.add_argument("--output", type=Path, help="write to this file instead of stdout")
+    return parser
+
+
+def _progress(label: str):  # type: ignore[no-untyped-def]
+    def report(fraction: float) -> None:
+        width = 30
+        done = int(fraction * width)
+        print(
+            f"\r{label} [{'#' * done}{'.' * (width - done)}] {fraction * 100:5.1f} %",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
+        if fraction >= 1.0:
+            print(file=sys.stderr)
+
+    return report
+
+
+def _cmd_hil_run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int:
+    from bywire.hil.run import run_scenario
+
+    mode = args.mode or default_mode
+    progress = None if args.quiet else _progress(f"{scenario_name} ({mode})")
+    result = run_scenario(
+        scenario_name,
+        mode=mode,
+        json_path=args.json,
+        report_dir=args.report,
+        record=args.record,
+        host_link=args.host_link,
+        ecu_store=args.ecu_store,
+        progress=progress,
+    )
+    for check in result["checks"]:
+        mark = "PASS" if check["passed"] else "FAIL"
+        print(f"  {mark}  {check['name']}: {check['value']} ({check['op']} {check['limit']})")
+    print(
+        f"{result['scenario']} ({result['mode']}): {result['verdict'].upper()}"
+        + (f" — report in {result['report_dir']}" if result.get("report_dir") else "")
+    )
+    return 0 if result["verdict"] == "pass" else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "ecu":
+        from bywire.ecu.cli import main as ecu_main
+
+        return ecu_main(argv[1:])
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "host":
+            from bywire.host import main as host_main
+
+            return host_main.main(args)
+        if args.command == "hil":
+            if args.hil_command == "list":
+                from bywire.hil.scenario import builtin_scenarios, load_scenario
+
+                for name in builtin_scenarios():
+                    print(f"{name:22s} {load_scenario(name).description}")
+                return 0
+            if args.hil_command == "plant":
+                from bywire.hil import plant_main
+
+                return plant_main.main(args)
+            if args.hil_command == "demo":
+                return _cmd_hil_run(args, "demo", "hil")
+            return _cmd_hil_run(args, args.scenario, "sil")
+        if args.command == "bench":
+            from bywire.hil.bench import bench_ecu
+
+            return bench_ecu(args.seconds, args.json, args.report)
+        if args.command == "bus":
+            from bywire.protocol.bus_url import run_bus_server
+
+            if args.rt_priority:
+                from bywire.ecu.realtime import apply_realtime
+
+                print(
+                    f"bus: real-time: {apply_realtime(priority=args.rt_priority, freeze_gc=False).summary()}"
+                )
+            run_bus_server(args.port, args.channel, args.host)
+            return 0
+        if args.command == "protocol":
+            from bywire.protocol.table import render_protocol_table
+
+            text = render_protocol_table()
+            if args.output:
+                args.output.write_text(text, encoding="utf-8")
+            else:
+                sys.stdout.write(text)
+            return 0
+    except KeyboardInterrupt:
+        return 130
+    except ValueError as exc:  # scenario, calibration and URL errors say what and where
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

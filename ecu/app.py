@@ -1,0 +1,356 @@
+"""The ECU application: the 1 kHz cycle that ties the buses to the pure core (DESIGN section 1, ECU box).
+
+One cycle (`EcuApp.step`), every millisecond on an absolute deadline:
+1. drain vehicle CAN through the E2E monitor (CRC, alive counter, age) and the host link through the
+   CANopen node (request RPDO, host heartbeat, SDO, NMT);
+2. reduce what was received to the core's inputs: freshness from the DBC cycle times, corruption
+   from error streaks, the host's heartbeat from our consumer (canopen has none: issue #543);
+3. `core_step`, the pure safety state machine + cascaded acceleration controller;
+4. send `DBW_Command` every 10 ms, the CANopen heartbeat and the status TPDOs on their timers, and
+   an EMCY when a new fault appears.
+
+Seed 000 section 2.1 / seed 003 section II-d: the ECU runs the low-level controller and is the
+safety authority; the host only asks. Imports: protocol, clock and the ECU's own modules only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+
+from bywire.clock import Clock
+from bywire.ecu.calibration import (
+    Calibration,
+    CalibrationError,
+    default_calibration,
+    dumps_calibration,
+    loads_calibration,
+)
+from bywire.ecu.core import CoreState, core_step, initial_core_state
+from bywire.ecu.executive import CycleStats
+from bywire.ecu.safety import EcuInputs
+from bywire.protocol.canopen_node import ABORT_DEVICE_STATE, EcuNode, RefusedWrite
+from bywire.protocol.ecu_types import EcuState, EstopMode, RequestFlags
+from bywire.protocol.host_link import EcuStatus, next_counter
+from bywire.protocol.timebase import rx_time_s
+from bywire.protocol.vehicle_can import (
+    DbwCommand,
+    DriverInputs,
+    EstopRadio,
+    Motion,
+    SteerReport,
+    VehicleCodec,
+    VehicleRx,
+    VehicleTx,
+    WheelSpeeds,
+)
+
+VEHICLE_REPORTS = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+
+
+@dataclass(frozen=True)
+class EcuConfig:
+    """Timing of the ECU's I/O; the limits and gains live in the calibration."""
+
+    command_period_s: float = 0.010  # DBW_Command, GenMsgCycleTime 10 ms
+    status_period_s: float = 0.020  # status TPDO refresh (the EDS event timers send them)
+    corrupt_streak: int = 3  # consecutive rejected frames of one report = corruption (30 ms at 100 Hz)
+
+
+class EcuApp:
+    """The ECU's cyclic work on two buses; steppable in lockstep (SIL) and by the real-time executive."""
+
+    def __init__(
+        self,
+        vehicle_bus: can.BusABC,
+        host_bus: can.BusABC,
+        clock: Clock,
+        calibration: Calibration | None,
+        calibration_error: str | None = None,
+        config: EcuConfig | None = None,
+        stats: CycleStats | None = None,
+        on_calibration: Any = None,
+    ) -> None:
+        self.vehicle_bus = vehicle_bus
+        self.clock = clock
+        self.config = config or EcuConfig()
+        self.calibration = calibration
+        self.calibration_error = calibration_error
+        # With no valid calibration the core stays OFF and never actuates; it still needs limits to
+        # compute its (passive) outputs, which the packaged default provides.
+        self._core_cal = calibration if calibration is not None else default_calibration()
+        self.stats = stats or CycleStats()
+        self.codec = VehicleCodec()
+        # Frames may wait up to 3 cycles (30 ms) in the socket when the ECU was late; older is stale.
+        self.rx = VehicleRx.for_node(self.codec, "ECU", max_age_cycles=3.0)
+        self.tx = VehicleTx(self.codec)
+        self._reports = tuple(self.rx.monitor(name) for name in VEHICLE_REPORTS)
+        self._wheels, self._motion, self._driver, self._steer = self._reports
+        self._estop = self.rx.monitor("ESTOP_Radio")
+        self._reported_faults = -1
+        self._status_counter = 0
+        self._on_calibration = on_calibration
+        self.node = EcuNode(
+            host_bus,
+            clock,
+            on_calibration_write=self._calibration_written,
+            on_unlatch=self._unlatch_requested,
+        )
+        self.core: CoreState = initial_core_state(clock.now())
+        self._unlatch_pending = False
+        self._next_command_s = -math.inf
+        self._next_status_s = -math.inf
+        self.last_command = None
+        if calibration is not None:
+            self.node.set_calibration(dumps_calibration(calibration), calibration.version)
+
+    # -- SDO hooks (run inside node.poll, i.e. inside the cycle) ----------------------------------
+
+    def _calibration_written(self, data: bytes) -> int:
+        """A new calibration over SDO: validated before anything changes; refused while actuating."""
+        if self.core.safety.state in (
+            EcuState.ENGAGED,
+            EcuState.PAUSED,
+            EcuState.SAFE_STOP,
+            EcuState.DISABLED,
+        ):
+            raise RefusedWrite(
+                "calibration can only be written while the ECU is not actuating (OFF/READY/MANUAL)",
+                ABORT_DEVICE_STATE,
+            )
+        cal = loads_calibration(data, "SDO 0x2200")  # CalibrationError names the field
+        if self._on_calibration is not None:
+            self._on_calibration(data, cal)  # persist first: a calibration that was not stored is not used
+        self.calibration = cal
+        self._core_cal = cal
+        self.calibration_error = None
+        return cal.version
+
+    def _unlatch_requested(self) -> None:
+        self._unlatch_pending = True
+
+    # -- one cycle --------------------------------------------------------------------------------
+
+    def step(self, now_s: float) -> None:
+        bus = self.vehicle_bus
+        rx = self.rx
+        while True:
+            msg = bus.recv(timeout=0)
+            if msg is None:
+                break
+            rx.feed(msg, now_s, rx_time_s(msg, now_s))
+        self.node.poll(now_s)
+        inputs = self._inputs(now_s)
+        self._unlatch_pending = False
+        self.core, cmd = core_step(self.core, inputs, now_s, self._core_cal)
+        self.last_command = cmd
+        if now_s >= self._next_command_s:
+            self._next_command_s = max(self._next_command_s + self.config.command_period_s, now_s)
+            frame = DbwCommand(
+                throttle_pct=cmd.throttle_pct,
+                brake_bar=cmd.brake_bar,
+                steer_angle_rad=cmd.steer_angle_rad,
+                engage=cmd.engage,
+                park_brake=cmd.park_brake,
+                ignition=cmd.ignition,
+                steer_enable=cmd.steer_enable,
+                ecu_state=cmd.state,
+            )
+            bus.send(self.tx.encode(frame, timestamp_s=now_s))
+        if now_s >= self._next_status_s:
+            self._next_status_s = max(self._next_status_s + self.config.status_period_s, now_s)
+            self._status_counter = next_counter(self._status_counter)
+            self.node.publish_status(self._status(inputs, cmd), now_s)
+        faults = cmd.faults_active | cmd.faults_latched
+        if faults != self._reported_faults:
+            self.node.report_faults(faults)  # EMCY on new bits, error reset when all clear
+            self._reported_faults = faults
+        self.node.tick(now_s)
+
+    def _inputs(self, now_s: float) -> EcuInputs:
+        wheels = self._wheels.last
+        motion = self._motion.last
+        driver = self._driver.last
+        steer = self._steer.last
+        estop = self._estop.last
+        reports = self._reports
+        streak = self.config.corrupt_streak
+        request = self.node.latest_request()
+        req = request[0] if request is not None else None
+        return EcuInputs(
+            estop_mode=estop.mode if isinstance(estop, EstopRadio) else EstopMode.INVALID,
+            estop_fresh=not self._estop.timed_out(now_s),
+            host_alive=self.node.host_alive(now_s),
+            request_accel_mps2=req.accel_mps2 if req is not None else 0.0,
+            request_steer_angle_rad=req.steer_angle_rad if req is not None else 0.0,
+            request_flags=req.flags if req is not None else RequestFlags.NONE,
+            request_fresh=self.node.request_fresh(now_s),
+            vehicle_fresh=not any(m.timed_out(now_s) for m in reports),
+            vehicle_corrupt=any(m.error_streak >= streak for m in reports),
+            calibration_valid=self.calibration is not None,
+            overrun_streak=self.stats.overrun_streak,
+            driver_brake_pressed=driver.brake_pedal_pressed if isinstance(driver, DriverInputs) else False,
+            driver_throttle_pct=driver.throttle_pedal_pct if isinstance(driver, DriverInputs) else 0.0,
+            driver_steer_torque_nm=steer.steer_torque_nm if isinstance(steer, SteerReport) else 0.0,
+            speed_mps=wheels.mean_mps if isinstance(wheels, WheelSpeeds) else 0.0,
+            accel_meas_mps2=motion.long_accel_mps2 if isinstance(motion, Motion) else 0.0,
+            steer_angle_meas_rad=steer.steer_angle_rad if isinstance(steer, SteerReport) else 0.0,
+            unlatch=self._unlatch_pending,
+        )
+
+    def _status(self, inputs: EcuInputs, cmd: Any) -> EcuStatus:
+        stats = self.stats
+        return EcuStatus(
+            state=cmd.state,
+            faults=cmd.faults_active | cmd.faults_latched,
+            speed_mps=inputs.speed_mps,
+            accel_mps2=inputs.accel_meas_mps2,
+            throttle_pct=cmd.throttle_pct,
+            brake_bar=cmd.brake_bar,
+            steer_angle_rad=cmd.steer_angle_rad,
+            lateness_p99_us=stats.window_p99_lateness_us(),
+            compute_max_us=stats.max_compute_us_window(),
+            overruns=stats.overruns,
+            counter=self._status_counter,
+        )
+
+    def rx_stats(self) -> dict[str, Any]:
+        return self.rx.stats()
+
+
+# -- calibration for a run ---------------------------------------------------------------------------
+
+
+def load_calibration_file(path: Path | None) -> tuple[Calibration | None, str | None]:
+    """The calibration to run with, or None and the reason (the ECU then stays OFF)."""
+    if path is None:
+        return default_calibration(), None
+    try:
+        return loads_calibration(path.read_bytes(), str(path)), None
+    except (OSError, CalibrationError) as exc:
+        return None, str(exc)
+
+
+# -- the ECU process -----------------------------------------------------------------------------------
+
+
+def add_run_arguments(p: Any) -> None:
+    p.add_argument(
+        "--vehicle-bus",
+        default="virtual:vehicle",
+        help="vehicle CAN bus URL (socketcan:can0, remote:ws://127.0.0.1:PORT/, ...)",
+    )
+    p.add_argument(
+        "--host-link",
+        default="udp://127.0.0.1:47000?peer=127.0.0.1:47001",
+        help="host link bus URL: CAN, or CAN frames over UDP (udp://BIND?peer=HOST:PORT)",
+    )
+    p.add_argument(
+        "--calibration", type=Path, help="calibration file (default: the packaged Passat calibration)"
+    )
+    p.add_argument(
+        "--no-calibration",
+        action="store_true",
+        help="run without a calibration (the ECU stays OFF): what a store without a valid one boots",
+    )
+    p.add_argument("--store", type=Path, help="the store this image was booted from (boot status goes there)")
+    p.add_argument("--seconds", type=float, help="stop after this long (default: run until SIGINT/SIGTERM)")
+    p.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO / mlockall / gc.freeze")
+    p.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority (default 80)")
+    p.add_argument("--cpu", type=int, help="pin the ECU to this CPU")
+    p.add_argument(
+        "--stats-json", type=Path, help="write the loop statistics (bench ecu format) here at exit"
+    )
+    p.add_argument(
+        "--ready-line", action="store_true", help="print 'ready' once running (for the HIL runner)"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`bywire ecu run` without --store (and the firmware image's `run`): the 1 kHz ECU process."""
+    import argparse
+    import json
+    import signal
+
+    from bywire.clock import WallClock
+    from bywire.ecu.executive import CyclicExecutive
+    from bywire.ecu.realtime import apply_realtime
+    from bywire.protocol.bus_url import open_bus
+
+    parser = argparse.ArgumentParser(prog="bywire ecu run", description="run the ECU firmware at 1 kHz")
+    add_run_arguments(parser)
+    args = parser.parse_args(argv)
+    if args.no_calibration:
+        cal, cal_error = None, "no calibration"
+    else:
+        cal, cal_error = load_calibration_file(args.calibration)
+    if cal_error:
+        print(f"ecu: calibration refused, staying OFF: {cal_error}", flush=True)
+    else:
+        assert cal is not None
+        print(f"ecu: calibration {cal.vehicle} version {cal.version}", flush=True)
+    vehicle_bus = open_bus(args.vehicle_bus)
+    host_bus = open_bus(args.host_link)
+    clock = WallClock()
+    stats = CycleStats()
+    on_cal = None
+    if args.store is not None:
+        from bywire.ecu.flash import persist_calibration_bytes
+
+        def on_cal(data: bytes, _cal: Calibration) -> None:
+            persist_calibration_bytes(args.store, data)
+
+    app = EcuApp(vehicle_bus, host_bus, clock, cal, cal_error, stats=stats, on_calibration=on_cal)
+    rt = None if args.no_rt else apply_realtime(priority=args.rt_priority, cpu=args.cpu)
+    scheduler = rt.summary() if rt is not None else "not requested (--no-rt)"
+    print(f"ecu: real-time: {scheduler}", flush=True)
+    stopping = False
+
+    def _stop(signum: int, frame: object) -> None:
+        nonlocal stopping
+        stopping = True
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    executive = CyclicExecutive(0.001, clock, app.step, stats)
+    end = clock.now() + args.seconds if args.seconds is not None else math.inf
+    booted = False
+
+    def progress(cycles: int) -> None:
+        nonlocal booted
+        if booted or cycles < 20:
+            return
+        booted = True
+        state = app.core.safety.state
+        if args.store is not None:
+            from bywire.ecu.store import report_boot
+
+            report_boot(args.store, state.name)
+        print(f"ecu: running, state {state.name}", flush=True)
+        if args.ready_line:
+            print("ready", flush=True)
+
+    try:
+        executive.run(stop=lambda: stopping or clock.now() >= end, progress=progress)
+    finally:
+        snapshot = stats.snapshot()
+        snapshot["scheduler"] = scheduler
+        snapshot["final_state"] = app.core.safety.state.name
+        snapshot["vehicle_rx"] = app.rx_stats()["total"] if "total" in app.rx_stats() else app.rx_stats()
+        if args.stats_json is not None:
+            args.stats_json.parent.mkdir(parents=True, exist_ok=True)
+            args.stats_json.write_text(json.dumps(snapshot, indent=2) + "\n", encoding="utf-8")
+        late = snapshot["lateness_us"]
+        print(
+            f"ecu: stopped in {snapshot['final_state']} after {snapshot['cycles']} cycles, "
+            f"{snapshot['overruns']} overruns, lateness p50 {late['p50']:.0f} us p99 {late['p99']:.0f} us "
+            f"max {late['max']:.0f} us",
+            flush=True,
+        )
+        vehicle_bus.shutdown()
+        host_bus.shutdown()
+    return 0

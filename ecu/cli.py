@@ -1,0 +1,98 @@
+"""`bywire ecu ...`: run the firmware (from the installation or from a flashed store) and flash it.
+
+This module is also what a firmware image's `run` dispatches to, so it imports only the ECU and
+the protocol (never host or HIL code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from bywire.ecu import app, boot, flash
+
+    parser = argparse.ArgumentParser(prog="bywire ecu", description="the ECU firmware: run and flash")
+    sub = parser.add_subparsers(dest="ecu_command", required=True, metavar="COMMAND")
+    run = sub.add_parser("run", help="run the ECU at 1 kHz (from a flashed store with --store)")
+    app.add_run_arguments(run)
+    run.add_argument(
+        "--ready-timeout",
+        dest="ready_timeout_s",
+        type=float,
+        default=boot.DEFAULT_READY_TIMEOUT_S,
+        help="with --store: seconds a newly flashed image has to come up before falling back",
+    )
+    flash.add_flash_arguments(sub.add_parser("flash", help="write firmware and/or calibration into a store"))
+    unlatch = sub.add_parser(
+        "unlatch", help="the manual unlatch of an E-stop DISABLE, over the host link (SDO)"
+    )
+    unlatch.add_argument(
+        "--host-link", required=True, help="bus URL of the host link (a CAN bus, not udp://)"
+    )
+    unlatch.add_argument("--timeout", type=float, default=2.0, help="SDO timeout in seconds")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    if args.ecu_command == "flash":
+        from bywire.ecu.flash import cmd_flash
+
+        return cmd_flash(args)
+    if args.ecu_command == "unlatch":
+        return _unlatch(args.host_link, args.timeout)
+    if args.store is not None:
+        from bywire.ecu.boot import cmd_run_from_store
+
+        # The image's app gets every option but the boot loader's own.
+        app_args = _strip_options(
+            argv[1:], {"--store": True, "--ready-timeout": True, "--vehicle-bus": True, "--host-link": True}
+        )
+        args.app_args = app_args
+        return cmd_run_from_store(args)
+    from bywire.ecu.app import main as app_main
+
+    return app_main(argv[1:])
+
+
+def _strip_options(argv: list[str], takes_value: dict[str, bool]) -> list[str]:
+    out: list[str] = []
+    skip = False
+    for item in argv:
+        if skip:
+            skip = False
+            continue
+        name = item.split("=", 1)[0]
+        if name in takes_value:
+            skip = takes_value[name] and "=" not in item
+            continue
+        out.append(item)
+    return out
+
+
+SERVICE_TOOL_NODE_ID = 0x7E  # not the host's 0x01: the tool's boot-up must not look like a host reboot
+
+
+def _unlatch(url: str, timeout_s: float) -> int:
+    from bywire.clock import WallClock
+    from bywire.protocol.bus_url import open_bus
+    from bywire.protocol.canopen_node import EcuRefusedError, HostMaster
+
+    bus = open_bus(url)
+    try:
+        tool = HostMaster(bus, WallClock(), node_id=SERVICE_TOOL_NODE_ID, sdo_timeout_s=timeout_s)
+        tool.unlatch()
+    except EcuRefusedError as exc:
+        print(f"error: the ECU refused the unlatch: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # no answer: wrong bus, ECU off
+        print(f"error: no unlatch acknowledgement from the ECU on {url}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        bus.shutdown()
+    print("unlatch sent and acknowledged; the ECU leaves DISABLED once the E-stop radio says RUN or PAUSE")
+    return 0

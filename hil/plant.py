@@ -1,0 +1,332 @@
+"""The plant: the FMU vehicle behind a simulated drive-by-wire gateway, E-stop radio and radar.
+
+It stands in for everything on the car's side of the vehicle CAN bus (DESIGN section 1, PLANT box):
+it turns the ECU's `DBW_Command` frames into FMU inputs the way the gateway would (only while the
+frame is fresh, valid and engaged; the driver's brake always adds), steps the FMU every millisecond,
+and turns FMU outputs into the gateway's report frames with sensor noise. Scenario faults are
+injected here: E-stop modes, driver brake and steering, grade and wind, and lost, corrupt, repeated
+or delayed frames. The same class runs in the HIL plant process (wall clock) and in SIL (lockstep).
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from dataclasses import dataclass
+
+import can
+
+from bywire.hil.scenario import FaultEvent, Scenario, ramp_value, step_value
+from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
+from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.timebase import rx_time_s
+from bywire.protocol.vehicle_can import (
+    DbwCommand,
+    DriverInputs,
+    EstopRadio,
+    Motion,
+    RadarTarget,
+    SteerReport,
+    VehicleCodec,
+    VehicleRx,
+    WheelSpeeds,
+)
+from bywire.vehicle_models.fmu_vehicle import FmuVehicle, VehicleInputs
+
+GATEWAY_PERIOD_S = 0.010  # GW_* frames, GenMsgCycleTime 10 ms in vehicle.dbc
+SLOW_PERIOD_S = 0.050  # ESTOP_Radio and RADAR_Target, 50 ms
+TRACE_PERIOD_S = 0.010
+RADAR_MAX_RANGE_M = 120.0  # a series ACC radar's useful range for a car target
+PARK_BRAKE_EQUIV_BAR = 60.0  # the electric park brake, expressed as service-brake pressure for the model
+DRIVER_BRAKE_BAR_PER_PCT = 1.2  # 100 % pedal ~ 120 bar: a full driver stop
+GATEWAY_FRAMES = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+
+
+@dataclass
+class _Actuation:
+    throttle_pct: float = 0.0
+    brake_bar: float = 0.0
+    steer_rad: float = 0.0
+
+
+class Plant:
+    """Steps the vehicle model and speaks the gateway's side of vehicle CAN."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        vehicle: FmuVehicle,
+        bus: can.BusABC,
+        t0_s: float,
+        trace: TraceWriter | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.vehicle = vehicle
+        self.bus = bus
+        self.t0_s = t0_s
+        self.trace = trace or TraceWriter(None, PLANT_COLUMNS)
+        self.codec = VehicleCodec()
+        self.rx = VehicleRx.for_node(self.codec, "GATEWAY", max_age_cycles=3.0)
+        self.rng = random.Random(scenario.seed)
+        self._pending: deque[tuple[float, DbwCommand]] = deque()
+        self._cmd: DbwCommand | None = None
+        self._park_brake_latched = False
+        self._counters: dict[str, int] = {}
+        self._delayed: deque[tuple[float, can.Message]] = deque()
+        self._next_gateway_s = t0_s
+        self._next_slow_s = t0_s
+        self._next_trace_s = t0_s
+        self._last_step_s: float | None = None
+        self.outputs = vehicle.outputs()
+        self._lead_pos_m = scenario.lead.gap0_m if scenario.lead else 0.0
+        self._applied = _Actuation()
+        self.collisions = 0
+        self._in_collision = False
+        self.min_gap_m = float("inf")
+        self._faults: dict[str, tuple[FaultEvent, ...]] = {}
+        for fault in scenario.faults:
+            self._faults[fault.kind] = (*self._faults.get(fault.kind, ()), fault)
+        self._cmd_monitor = self.rx.monitor("DBW_Command")
+        self._frame_faults = any(k in self._faults for k in ("drop", "corrupt", "repeat", "delay"))
+
+    # -- scenario state at time t ------------------------------------------------------------------
+
+    def _active(self, kind: str, t: float, frame: str | None = None) -> FaultEvent | None:
+        for fault in self._faults.get(kind, ()):
+            if fault.active(t) and (frame is None or frame in fault.frames):
+                return fault
+        return None
+
+    def estop_mode(self, t: float) -> EstopMode:
+        mode = EstopMode.RUN
+        for fault in self.scenario.faults:
+            if fault.kind == "estop" and fault.at_s <= t:
+                mode = fault.mode
+        return mode
+
+    def driver_brake_pct(self, t: float) -> float:
+        if "driver_brake" not in self._faults:
+            return 0.0
+        fault = self._active("driver_brake", t)
+        return fault.pedal_pct if fault else 0.0
+
+    def driver_torque_nm(self, t: float) -> float:
+        fault = self._active("driver_steer", t)
+        return fault.torque_nm if fault else 0.0
+
+    # -- one millisecond ---------------------------------------------------------------------------
+
+    def step(self, now_s: float) -> None:
+        t = now_s - self.t0_s
+        dt = 0.001 if self._last_step_s is None else max(0.0, now_s - self._last_step_s)
+        self._last_step_s = now_s
+        self._receive(now_s)
+        cmd_fresh = self._cmd is not None and not self._cmd_monitor.timed_out(now_s)
+        act = _Actuation()
+        cmd = self._cmd
+        if cmd is not None and cmd_fresh:
+            if cmd.engage and cmd.ignition:
+                act.throttle_pct = cmd.throttle_pct
+            if cmd.engage:
+                act.brake_bar = cmd.brake_bar
+            if cmd.steer_enable:
+                act.steer_rad = cmd.steer_angle_rad
+            if cmd.park_brake:
+                self._park_brake_latched = True
+            elif cmd.ignition:
+                self._park_brake_latched = False
+        driver_pct = self.driver_brake_pct(t)
+        act.brake_bar = max(act.brake_bar, driver_pct * DRIVER_BRAKE_BAR_PER_PCT)
+        if self._park_brake_latched:
+            act.brake_bar = max(act.brake_bar, PARK_BRAKE_EQUIV_BAR)
+            act.throttle_pct = 0.0
+        if driver_pct > 0.0:
+            act.throttle_pct = 0.0  # brake override: a driver on the brake always wins over throttle
+        self._applied = act
+        if dt > 0.0:
+            self.outputs = self.vehicle.step(
+                dt,
+                VehicleInputs(
+                    throttle_pct=act.throttle_pct,
+                    brake_bar=act.brake_bar,
+                    steer_angle_rad=act.steer_rad,
+                    grade_pct=ramp_value(self.scenario.grade_pct, t),
+                    wind_mps=ramp_value(self.scenario.wind_mps, t),
+                ),
+            )
+            self._advance_lead(t, dt)
+        if now_s >= self._next_gateway_s:
+            self._next_gateway_s += GATEWAY_PERIOD_S
+            if self._next_gateway_s < now_s:  # a stalled HIL process re-phases instead of bursting
+                self._next_gateway_s = now_s + GATEWAY_PERIOD_S
+            self._send_gateway(now_s, t)
+        if now_s >= self._next_slow_s:
+            self._next_slow_s += SLOW_PERIOD_S
+            if self._next_slow_s < now_s:
+                self._next_slow_s = now_s + SLOW_PERIOD_S
+            self._send_slow(now_s, t)
+        self._flush_delayed(now_s)
+        if now_s >= self._next_trace_s:
+            self._next_trace_s += TRACE_PERIOD_S
+            if self._next_trace_s < now_s:
+                self._next_trace_s = now_s + TRACE_PERIOD_S
+            self._record(t, cmd_fresh)
+
+    def _receive(self, now_s: float) -> None:
+        delay_s = self.scenario.actuator_delay_ms / 1000.0
+        while True:
+            msg = self.bus.recv(timeout=0)
+            if msg is None:
+                break
+            frame = self.rx.feed(msg, now_s, rx_time_s(msg, now_s))
+            if isinstance(frame, DbwCommand):
+                self._pending.append((now_s + delay_s, frame))
+        while self._pending and self._pending[0][0] <= now_s:
+            self._cmd = self._pending.popleft()[1]
+
+    def _advance_lead(self, t: float, dt: float) -> None:
+        lead = self.scenario.lead
+        if lead is None:
+            return
+        self._lead_pos_m += ramp_value(lead.speed_profile, t) * dt
+        gap = self.lead_gap_m(t)
+        if gap is not None:
+            self.min_gap_m = min(self.min_gap_m, gap)
+            if gap <= 0.0 and not self._in_collision:
+                self.collisions += 1
+            self._in_collision = gap <= 0.0
+
+    def lead_gap_m(self, t: float) -> float | None:
+        lead = self.scenario.lead
+        if lead is None or (lead.leaves_at_s is not None and t >= lead.leaves_at_s):
+            return None
+        return self._lead_pos_m - self.outputs.distance_m
+
+    # -- frames ------------------------------------------------------------------------------------
+
+    def _next_counter(self, name: str, t: float) -> int:
+        counter = self._counters.get(name, 0)
+        if not self._frame_faults or self._active("repeat", t, name) is None:
+            self._counters[name] = (counter + 1) & 0x0F
+        return counter
+
+    def _emit(self, name: str, frame: object, now_s: float, t: float) -> None:
+        if not self._frame_faults:
+            msg = self.codec.encode(frame, self._next_counter(name, t), saturate=True, timestamp_s=now_s)
+            self.bus.send(msg)
+            return
+        if self._active("drop", t, name) is not None:
+            self._next_counter(name, t)  # the sender still counts: the receiver sees a gap
+            return
+        msg = self.codec.encode(frame, self._next_counter(name, t), saturate=True)
+        msg.timestamp = now_s
+        if self._active("corrupt", t, name) is not None:
+            data = bytearray(msg.data)
+            data[0] ^= 0x5A  # a CRC that cannot match
+            msg.data = data
+        delay = self._active("delay", t, name)
+        if delay is not None:
+            self._delayed.append((now_s + delay.delay_ms / 1000.0, msg))
+            return
+        self.bus.send(msg)
+
+    def _flush_delayed(self, now_s: float) -> None:
+        while self._delayed and self._delayed[0][0] <= now_s:
+            self.bus.send(self._delayed.popleft()[1])
+
+    def _noise(self, sigma: float) -> float:
+        return self.rng.gauss(0.0, sigma) if sigma > 0.0 else 0.0
+
+    def _send_gateway(self, now_s: float, t: float) -> None:
+        out = self.outputs
+        sc = self.scenario
+        wn = sc.wheel_speed_noise_mps
+
+        def wheel(v: float) -> float:
+            return max(0.0, abs(v) + self._noise(wn)) if abs(v) > 0.01 else 0.0
+
+        self._emit(
+            "GW_WheelSpeeds",
+            WheelSpeeds(
+                fl_mps=wheel(out.wheel_speed_fl_mps),
+                fr_mps=wheel(out.wheel_speed_fr_mps),
+                rl_mps=wheel(out.wheel_speed_rl_mps),
+                rr_mps=wheel(out.wheel_speed_rr_mps),
+            ),
+            now_s,
+            t,
+        )
+        self._emit(
+            "GW_Motion",
+            Motion(
+                long_accel_mps2=out.accel_mps2 + self._noise(sc.accel_noise_mps2),
+                yaw_rate_radps=out.yaw_rate_radps + self._noise(0.002),
+                brake_bar_actual=out.brake_bar_actual,
+            ),
+            now_s,
+            t,
+        )
+        pedal = self.driver_brake_pct(t)
+        self._emit(
+            "GW_Driver",
+            DriverInputs(brake_pedal_pressed=pedal > 2.0, throttle_pedal_pct=0.0, brake_pedal_pct=pedal),
+            now_s,
+            t,
+        )
+        self._emit(
+            "GW_Steer",
+            SteerReport(steer_angle_rad=out.steer_angle_rad_actual, steer_torque_nm=self.driver_torque_nm(t)),
+            now_s,
+            t,
+        )
+
+    def _send_slow(self, now_s: float, t: float) -> None:
+        self._emit("ESTOP_Radio", EstopRadio(mode=self.estop_mode(t)), now_s, t)
+        gap = self.lead_gap_m(t)
+        if gap is not None and 0.0 < gap < RADAR_MAX_RANGE_M and self.scenario.lead is not None:
+            rate = ramp_value(self.scenario.lead.speed_profile, t) - self.outputs.speed_mps
+            target = RadarTarget(
+                valid=True,
+                range_m=max(0.0, gap + self._noise(self.scenario.radar_range_noise_m)),
+                range_rate_mps=rate + self._noise(0.05),
+                azimuth_rad=0.0,
+            )
+        else:
+            target = RadarTarget(valid=False, range_m=0.0, range_rate_mps=0.0, azimuth_rad=0.0)
+        self._emit("RADAR_Target", target, now_s, t)
+
+    def _record(self, t: float, cmd_fresh: bool) -> None:
+        out = self.outputs
+        cmd = self._cmd
+        gap = self.lead_gap_m(t)
+        lead_speed = ramp_value(self.scenario.lead.speed_profile, t) if self.scenario.lead else float("nan")
+        self.trace.append(
+            (
+                t,
+                out.speed_mps,
+                out.accel_mps2,
+                out.distance_m,
+                out.x_m,
+                out.y_m,
+                out.heading_rad,
+                out.yaw_rate_radps,
+                cmd.throttle_pct if cmd else 0.0,
+                cmd.brake_bar if cmd else 0.0,
+                cmd.steer_angle_rad if cmd else 0.0,
+                self._applied.throttle_pct,
+                self._applied.brake_bar,
+                out.brake_bar_actual,
+                out.steer_angle_rad_actual,
+                float(bool(cmd and cmd.engage)),
+                float(int(cmd.ecu_state) if cmd else int(EcuState.OFF)),
+                float(int(self.estop_mode(t))),
+                self.driver_brake_pct(t),
+                ramp_value(self.scenario.grade_pct, t),
+                gap if gap is not None else float("nan"),
+                lead_speed,
+                float(cmd_fresh),
+            )
+        )
+
+
+__all__ = ["Plant", "step_value"]

@@ -1,0 +1,64 @@
+"""Run a scenario in SIL or HIL, evaluate it, and write its JSON and report (`bywire hil run`)."""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bywire.hil.evaluate import evaluate
+from bywire.hil.report import plot_run, write_json
+from bywire.hil.scenario import load_scenario
+
+
+def run_scenario(
+    name_or_file: str,
+    mode: str = "sil",
+    json_path: Path | None = None,
+    report_dir: Path | None = None,
+    record: Path | None = None,
+    host_link: str = "remote",
+    ecu_store: Path | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> dict[str, Any]:
+    """Run one scenario and return the result document (also written to `json_path` / `report_dir`)."""
+    scenario = load_scenario(name_or_file)
+    tmp: tempfile.TemporaryDirectory[str] | None = None
+    if report_dir is not None:
+        run_dir = report_dir
+        run_dir.mkdir(parents=True, exist_ok=True)
+    else:
+        tmp = tempfile.TemporaryDirectory(prefix=f"bywire-{scenario.name}-")
+        run_dir = Path(tmp.name)
+    try:
+        if mode == "sil":
+            from bywire.hil.sil import run_sil
+
+            result = run_sil(scenario, run_dir, record=record, progress=progress)
+        elif mode == "hil":
+            from bywire.hil.runner import run_hil
+
+            result = run_hil(
+                scenario, run_dir, record=record, host_link=host_link, progress=progress, ecu_store=ecu_store
+            )
+        else:
+            raise ValueError(f"mode must be sil or hil, not {mode!r}")
+        if progress is not None:
+            progress(1.0)
+        document = evaluate(scenario, result.plant, result.host, result.extra)
+        document = {
+            "scenario": document["scenario"],
+            "mode": mode,
+            **{k: v for k, v in document.items() if k != "scenario"},
+        }
+        if report_dir is not None:
+            plot_run(report_dir / f"{scenario.name}.png", scenario, result.plant, result.host, document)
+            write_json(report_dir / f"{scenario.name}.json", document)
+            document["report_dir"] = str(report_dir)
+        if json_path is not None:
+            write_json(json_path, document)
+        return document
+    finally:
+        if tmp is not None:
+            tmp.cleanup()

@@ -1,0 +1,326 @@
+"""HIL runner: the bus servers, the plant, the ECU and the host as separate processes (DESIGN section 1).
+
+Start-up is two-phase so that slow imports on a loaded 2-core machine cannot eat into a scenario:
+each child loads everything (FMU, DBC, EDS), prints `ready`, and waits on stdin for the common
+start instant t0 on CLOCK_MONOTONIC, which the runner sends once all are ready. Scenario faults
+that concern the host process itself (SIGSTOP freeze, SIGKILL) are applied here at t0 + at_s.
+Every process writes its own trace; the runner records every frame on the buses it can see.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+from bywire.hil.recording import Recorder
+from bywire.hil.scenario import Scenario
+from bywire.hil.sil import RunResult
+from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, read_trace
+from bywire.protocol.bus_url import open_bus, wait_for_port
+
+READY_TIMEOUT_S = 90.0  # four Python processes importing numpy/fmpy/canopen at once on 2 cores
+START_MARGIN_S = 0.5
+SHUTDOWN_GRACE_S = 10.0
+# SCHED_FIFO priorities on one 2-core machine: the ECU (80) above the buses it depends on (75),
+# the plant (70, its own default) and the host (60); everything else on the machine comes after.
+BUS_RT_PRIORITY = 75
+HOST_RT_PRIORITY = 60
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Child:
+    """One child process with its output captured to a log file and a line-based ready handshake."""
+
+    def __init__(self, name: str, argv: list[str], log_path: Path, wants_t0: bool) -> None:
+        self.name = name
+        self.log_path = log_path
+        self.wants_t0 = wants_t0
+        self._log = open(log_path, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        )
+        self.ready = threading.Event()
+        self._thread = threading.Thread(target=self._pump, args=(self.proc.stdout,), daemon=True)
+        self._thread.start()
+
+    def _pump(self, stream: IO[str] | None) -> None:
+        if stream is None:
+            return
+        for line in stream:
+            self._log.write(line)
+            self._log.flush()
+            if line.strip() == "ready" or line.startswith("ready "):
+                self.ready.set()
+
+    def send_t0(self, t0: float) -> None:
+        if self.proc.stdin is not None:
+            with contextlib.suppress(BrokenPipeError):
+                self.proc.stdin.write(f"{t0!r}\n")
+                self.proc.stdin.flush()
+
+    def signal(self, sig: int) -> None:
+        if self.proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                self.proc.send_signal(sig)
+
+    def stop(self, timeout_s: float = SHUTDOWN_GRACE_S) -> int | None:
+        if self.proc.poll() is None:
+            self.signal(signal.SIGCONT)
+            self.signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self._thread.join(2)
+        return self.proc.returncode
+
+    def close(self) -> None:
+        self._log.close()
+
+    def tail(self, n: int = 15) -> str:
+        try:
+            return "".join(self.log_path.read_text(encoding="utf-8").splitlines(keepends=True)[-n:])
+        except OSError:
+            return ""
+
+
+def _cli() -> list[str]:
+    return [sys.executable, "-m", "bywire"]
+
+
+def run_hil(
+    scenario: Scenario,
+    run_dir: Path,
+    record: Path | None = None,
+    host_link: str = "remote",
+    progress: Callable[[float], None] | None = None,
+    ecu_store: Path | None = None,
+) -> RunResult:
+    """Run `scenario` as real processes on loopback virtual buses; traces and logs land in `run_dir`."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    children: list[Child] = []
+    vehicle_port = free_port()
+    vehicle_url = f"remote:ws://127.0.0.1:{vehicle_port}/"
+    children.append(
+        Child(
+            "bus-vehicle",
+            [
+                *_cli(),
+                "bus",
+                "serve",
+                "--port",
+                str(vehicle_port),
+                "--channel",
+                "vehicle",
+                "--rt-priority",
+                str(BUS_RT_PRIORITY),
+            ],
+            run_dir / "bus-vehicle.log",
+            False,
+        )
+    )
+    if host_link == "remote":
+        link_port = free_port()
+        ecu_link = host_link_url = f"remote:ws://127.0.0.1:{link_port}/"
+        children.append(
+            Child(
+                "bus-link",
+                [
+                    *_cli(),
+                    "bus",
+                    "serve",
+                    "--port",
+                    str(link_port),
+                    "--channel",
+                    "host_link",
+                    "--rt-priority",
+                    str(BUS_RT_PRIORITY),
+                ],
+                run_dir / "bus-link.log",
+                False,
+            )
+        )
+    elif host_link == "udp":
+        ecu_port, host_port = free_udp_port(), free_udp_port()
+        ecu_link = f"udp://127.0.0.1:{ecu_port}?peer=127.0.0.1:{host_port}"
+        host_link_url = f"udp://127.0.0.1:{host_port}?peer=127.0.0.1:{ecu_port}"
+    else:
+        raise ValueError(f"host link must be 'remote' or 'udp', not {host_link!r}")
+    recorder: Recorder | None = None
+    stop_recording = threading.Event()
+    rec_thread: threading.Thread | None = None
+    result_extra: dict[str, Any] = {"host_link": host_link}
+    try:
+        wait_for_port("127.0.0.1", vehicle_port, 30.0)
+        if host_link == "remote":
+            wait_for_port("127.0.0.1", link_port, 30.0)
+        scenario_file = scenario.source
+        ecu_argv = [
+            *_cli(),
+            "ecu",
+            "run",
+            "--vehicle-bus",
+            vehicle_url,
+            "--host-link",
+            ecu_link,
+            "--stats-json",
+            str(run_dir / "ecu_stats.json"),
+            "--ready-line",
+        ]
+        if ecu_store is not None:
+            ecu_argv += ["--store", str(ecu_store)]
+        else:
+            cal_path = _calibration_argument(scenario, run_dir)
+            if cal_path is not None:
+                ecu_argv += ["--calibration", str(cal_path)]
+        ecu = Child("ecu", ecu_argv, run_dir / "ecu.log", False)
+        children.append(ecu)
+        plant = Child(
+            "plant",
+            [
+                *_cli(),
+                "hil",
+                "plant",
+                scenario_file,
+                "--vehicle-bus",
+                vehicle_url,
+                "--trace",
+                str(run_dir / "plant.csv"),
+                "--t0",
+                "-",
+                "--duration",
+                repr(scenario.duration_s),
+            ],
+            run_dir / "plant.log",
+            True,
+        )
+        children.append(plant)
+        host = Child(
+            "host",
+            [
+                *_cli(),
+                "host",
+                "run",
+                "--scenario",
+                scenario_file,
+                "--host-link",
+                host_link_url,
+                "--sensor-bus",
+                vehicle_url,
+                "--trace",
+                str(run_dir / "host.csv"),
+                "--t0",
+                "-",
+                "--seconds",
+                repr(scenario.duration_s + 2.0),
+            ],
+            run_dir / "host.log",
+            True,
+        )
+        children.append(host)
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        for child in (ecu, plant, host):
+            while not child.ready.wait(0.2):
+                if child.proc.poll() is not None:
+                    raise RuntimeError(f"{child.name} exited during start-up:\n{child.tail()}")
+                if time.monotonic() > deadline:
+                    raise RuntimeError(
+                        f"{child.name} not ready after {READY_TIMEOUT_S:.0f} s:\n{child.tail()}"
+                    )
+        if record is not None:
+            buses = {"vehicle": open_bus(vehicle_url)}
+            if host_link == "remote":
+                buses["host_link"] = open_bus(host_link_url)
+            recorder = Recorder(record, buses)
+            rec_thread = threading.Thread(target=_record_loop, args=(recorder, stop_recording), daemon=True)
+            rec_thread.start()
+        t0 = time.monotonic() + START_MARGIN_S
+        for child in (plant, host):
+            child.send_t0(t0)
+        wall0 = time.monotonic()
+        _supervise(scenario, t0, host, plant, progress)
+        result_extra["wall_s"] = round(time.monotonic() - wall0, 2)
+        result_extra["real_time_factor"] = round(scenario.duration_s / max(1e-9, time.monotonic() - t0), 3)
+    finally:
+        stop_recording.set()
+        if rec_thread is not None:
+            rec_thread.join(5)
+        if recorder is not None:
+            recorder.close()
+            result_extra["recorded_frames"] = recorder.frames
+            for b in recorder.buses.values():
+                b.shutdown()
+        codes = {}
+        for child in reversed(children):
+            codes[child.name] = child.stop()
+            child.close()
+        result_extra["exit_codes"] = codes
+    stats_path = run_dir / "ecu_stats.json"
+    if stats_path.exists():
+        result_extra["ecu_loop"] = json.loads(stats_path.read_text(encoding="utf-8"))
+    plant_trace = read_trace(run_dir / "plant.csv", PLANT_COLUMNS)
+    host_path = run_dir / "host.csv"
+    host_trace = read_trace(host_path, HOST_COLUMNS) if host_path.exists() else None
+    return RunResult(plant=plant_trace, host=host_trace, extra=result_extra)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _calibration_argument(scenario: Scenario, run_dir: Path) -> Path | None:
+    from bywire.hil.run_calibration import run_calibration_file
+
+    return run_calibration_file(scenario, run_dir)
+
+
+def _record_loop(recorder: Recorder, stop: threading.Event) -> None:
+    while not stop.is_set():
+        if recorder.pump() == 0:
+            time.sleep(0.002)
+
+
+def _supervise(
+    scenario: Scenario, t0: float, host: Child, plant: Child, progress: Callable[[float], None] | None
+) -> None:
+    """Wait for the plant to finish the scenario, applying the host-process faults on time."""
+    actions = sorted((f.at_s, f.kind) for f in scenario.faults if f.kind in ("host_freeze", "host_kill"))
+    end = t0 + scenario.duration_s
+    limit = end + max(30.0, scenario.hil_timeout_s)
+    last_report = -1
+    while plant.proc.poll() is None:
+        now = time.monotonic()
+        while actions and now >= t0 + actions[0][0]:
+            _, kind = actions.pop(0)
+            host.signal(signal.SIGSTOP if kind == "host_freeze" else signal.SIGKILL)
+        if progress is not None and now >= t0:
+            pct = int(min(1.0, (now - t0) / scenario.duration_s) * 20)
+            if pct != last_report:
+                last_report = pct
+                progress(pct / 20)
+        if now > limit:
+            raise RuntimeError(
+                f"plant did not finish {scenario.duration_s} s scenario in time:\n{plant.tail()}"
+            )
+        time.sleep(0.02)
+    if plant.proc.returncode != 0:
+        raise RuntimeError(f"plant failed with exit code {plant.proc.returncode}:\n{plant.tail()}")

@@ -1,0 +1,444 @@
+"""Scenario files: what the plant, the ECU and the host do in one HIL/SIL run, and how it is judged.
+
+A scenario is a YAML (or TOML) file with the schema documented in `docs/scenarios.md`. Parsing is
+strict: an unknown key, a wrong type or an impossible value is refused with the file and the path of
+the bad field (`grade.yaml: faults[1].at_s: expected a number >= 0, got 'soon'`), because a typo in a
+safety scenario that silently does nothing is worse than no scenario.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from bywire.protocol.ecu_types import EcuState, EstopMode
+
+SCENARIO_SUFFIXES = (".yaml", ".yml", ".toml")
+
+FAULT_KINDS = (
+    "estop",  # E-stop radio mode change: mode = RUN | PAUSE | DISABLE
+    "driver_brake",  # driver presses the brake pedal: pedal_pct, duration_s
+    "driver_steer",  # driver steering torque: torque_nm, duration_s
+    "corrupt",  # vehicle frames sent with a bad CRC: frames, duration_s
+    "drop",  # vehicle frames not sent at all: frames, duration_s
+    "delay",  # vehicle frames held back: frames, delay_ms, duration_s
+    "repeat",  # vehicle frames sent with a frozen alive counter: frames, duration_s
+    "heartbeat_mute",  # the host stops its CANopen heartbeat but keeps sending requests
+    "host_freeze",  # the host stops (SIL: stops stepping; HIL: SIGSTOP)
+    "host_kill",  # the host dies (SIL: stops stepping; HIL: SIGKILL)
+    "host_stop",  # the host asks the ECU for a controlled stop (request flag STOP)
+    "unlatch",  # the operator's manual unlatch of a DISABLE (SDO write)
+    "rearm",  # the host sends a REARM pulse
+)
+
+CHECK_OPS = ("max", "min", "equals")
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be run, with the file and the path of the bad field."""
+
+    def __init__(self, source: str, path: str, message: str) -> None:
+        super().__init__(f"{source}: {path}: {message}" if path else f"{source}: {message}")
+        self.source = source
+        self.path = path
+
+
+class _Reader:
+    """Typed access to one mapping of a scenario, remembering where it is for error messages."""
+
+    def __init__(self, data: Any, source: str, path: str) -> None:
+        if not isinstance(data, dict):
+            raise ScenarioError(source, path, f"expected a mapping, got {type(data).__name__}")
+        self.data = data
+        self.source = source
+        self.path = path
+        self.used: set[str] = set()
+
+    def _p(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key: str, message: str) -> ScenarioError:
+        return ScenarioError(self.source, self._p(key), message)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = None) -> Any:
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def number(
+        self, key: str, default: float | None = None, lo: float | None = None, hi: float | None = None
+    ) -> float:
+        self.used.add(key)
+        if key not in self.data:
+            if default is None:
+                raise self.error(key, "required number is missing")
+            return default
+        value = self.data[key]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(key, f"expected a number, got {value!r}")
+        value = float(value)
+        if value != value:
+            raise self.error(key, "expected a number, got NaN")
+        if lo is not None and value < lo:
+            raise self.error(key, f"expected a number >= {lo}, got {value}")
+        if hi is not None and value > hi:
+            raise self.error(key, f"expected a number <= {hi}, got {value}")
+        return value
+
+    def opt_number(self, key: str, lo: float | None = None, hi: float | None = None) -> float | None:
+        if key not in self.data or self.data[key] is None:
+            self.used.add(key)
+            return None
+        return self.number(key, lo=lo, hi=hi)
+
+    def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+        self.used.add(key)
+        if key not in self.data:
+            if default is None:
+                raise self.error(key, "required string is missing")
+            return default
+        value = self.data[key]
+        if not isinstance(value, str):
+            raise self.error(key, f"expected a string, got {value!r}")
+        if choices is not None and value not in choices:
+            raise self.error(key, f"expected one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def boolean(self, key: str, default: bool) -> bool:
+        self.used.add(key)
+        value = self.data.get(key, default)
+        if not isinstance(value, bool):
+            raise self.error(key, f"expected true or false, got {value!r}")
+        return value
+
+    def sub(self, key: str) -> _Reader:
+        self.used.add(key)
+        return _Reader(self.data.get(key) or {}, self.source, self._p(key))
+
+    def profile(self, key: str) -> tuple[tuple[float, float], ...]:
+        """A piecewise profile: a list of [t_s, value] pairs with increasing t_s."""
+        self.used.add(key)
+        value = self.data.get(key)
+        if value is None:
+            return ()
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return ((0.0, float(value)),)
+        if not isinstance(value, list):
+            raise self.error(key, f"expected a list of [t_s, value] pairs or a number, got {value!r}")
+        points: list[tuple[float, float]] = []
+        for i, item in enumerate(value):
+            ok = (
+                isinstance(item, list | tuple)
+                and len(item) == 2
+                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in item)
+            )
+            if not ok:
+                raise self.error(f"{key}[{i}]", f"expected [t_s, value], got {item!r}")
+            if points and item[0] <= points[-1][0]:
+                raise self.error(f"{key}[{i}]", f"times must increase, {item[0]} after {points[-1][0]}")
+            points.append((float(item[0]), float(item[1])))
+        return tuple(points)
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(unknown[0], "unknown key (a typo?)")
+
+
+def step_value(profile: tuple[tuple[float, float], ...], t_s: float, default: float = 0.0) -> float:
+    """Zero-order hold of a piecewise profile: the value of the last point at or before t_s."""
+    value = default
+    for t_point, v_point in profile:
+        if t_point > t_s:
+            break
+        value = v_point
+    return value
+
+
+def ramp_value(profile: tuple[tuple[float, float], ...], t_s: float, default: float = 0.0) -> float:
+    """Linear interpolation of a profile, held constant outside its range."""
+    if not profile:
+        return default
+    if t_s <= profile[0][0]:
+        return profile[0][1]
+    for (t0, v0), (t1, v1) in itertools.pairwise(profile):
+        if t_s <= t1:
+            return v0 + (v1 - v0) * (t_s - t0) / (t1 - t0)
+    return profile[-1][1]
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    at_s: float
+    kind: str
+    duration_s: float = 0.0
+    frames: tuple[str, ...] = ()
+    mode: EstopMode = EstopMode.RUN
+    pedal_pct: float = 0.0
+    torque_nm: float = 0.0
+    delay_ms: float = 0.0
+
+    def active(self, t_s: float) -> bool:
+        return self.at_s <= t_s < self.at_s + self.duration_s
+
+
+@dataclass(frozen=True)
+class LeadCar:
+    gap0_m: float
+    speed_profile: tuple[tuple[float, float], ...]
+    length_m: float = 4.8
+    leaves_at_s: float | None = None  # turns off the road: the radar loses it
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    metric: str
+    op: str
+    limit: float | bool | str
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    source: str
+    duration_s: float
+    v0_mps: float
+    model: str
+    plant_mapping: str | None
+    calibration: str | None  # None: the ECU's default calibration
+    corrupt_calibration: bool
+    host_mode: str  # "script": accel_profile; "drive": longitudinal override controller
+    engage_at_s: float
+    accel_profile: tuple[tuple[float, float], ...]
+    speed_profile: tuple[tuple[float, float], ...]
+    steer_profile: tuple[tuple[float, float], ...]
+    stop_line_m: float | None
+    lead: LeadCar | None
+    grade_pct: tuple[tuple[float, float], ...]
+    wind_mps: tuple[tuple[float, float], ...]
+    accel_noise_mps2: float
+    wheel_speed_noise_mps: float
+    radar_range_noise_m: float
+    actuator_delay_ms: float
+    faults: tuple[FaultEvent, ...]
+    checks: tuple[Check, ...]
+    fault_ref_s: float | None
+    hold_until_s: float | None
+    seed: int
+    hil_timeout_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
+        return tuple(f for f in self.faults if f.kind in kinds)
+
+
+def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
+    r = _Reader(item, source, path)
+    kind = r.string("kind", choices=FAULT_KINDS)
+    at_s = r.number("at_s", lo=0.0)
+    duration_s = r.number("duration_s", default=0.0, lo=0.0)
+    frames_raw = r.raw("frames", [])
+    if not isinstance(frames_raw, list) or not all(isinstance(f, str) for f in frames_raw):
+        raise r.error("frames", f"expected a list of DBC message names, got {frames_raw!r}")
+    mode = EstopMode.RUN
+    if kind == "estop":
+        mode_name = r.string("mode", choices=("RUN", "PAUSE", "DISABLE", "INVALID"))
+        mode = EstopMode[mode_name]
+    pedal = r.number("pedal_pct", default=30.0, lo=0.0, hi=100.0) if kind == "driver_brake" else 0.0
+    torque = r.number("torque_nm", default=5.0, lo=-20.0, hi=20.0) if kind == "driver_steer" else 0.0
+    delay = r.number("delay_ms", default=0.0, lo=0.0, hi=10_000.0) if kind == "delay" else 0.0
+    if kind in ("corrupt", "drop", "delay", "repeat") and not frames_raw:
+        raise r.error("frames", f"a '{kind}' fault needs the list of frames it affects")
+    r.finish()
+    return FaultEvent(
+        at_s=at_s,
+        kind=kind,
+        duration_s=duration_s,
+        frames=tuple(frames_raw),
+        mode=mode,
+        pedal_pct=pedal,
+        torque_nm=torque,
+        delay_ms=delay,
+    )
+
+
+def _parse_check(item: Any, source: str, path: str) -> Check:
+    r = _Reader(item, source, path)
+    metric = r.string("metric")
+    ops = [op for op in CHECK_OPS if r.has(op)]
+    if len(ops) != 1:
+        raise ScenarioError(source, path, f"a check needs exactly one of {', '.join(CHECK_OPS)}")
+    op = ops[0]
+    limit = r.raw(op)
+    if op in ("max", "min") and (isinstance(limit, bool) or not isinstance(limit, int | float)):
+        raise r.error(op, f"expected a number, got {limit!r}")
+    if op == "equals" and not isinstance(limit, bool | str | int | float):
+        raise r.error(op, f"expected a value, got {limit!r}")
+    name = r.string("name", default=f"{metric}_{op}")
+    r.finish()
+    return Check(name=name, metric=metric, op=op, limit=limit)
+
+
+def parse_scenario(data: Any, source: str) -> Scenario:
+    """Build a `Scenario` from parsed YAML/TOML data; `source` names the file in errors."""
+    r = _Reader(data, source, "")
+    name = r.string("name")
+    description = r.string("description", default="")
+    duration_s = r.number("duration_s", lo=0.1, hi=24 * 3600.0)
+    seed = int(r.number("seed", default=1.0, lo=0.0))
+    hil_timeout_s = r.number("hil_timeout_s", default=0.0, lo=0.0)
+
+    vehicle = r.sub("vehicle")
+    model = vehicle.string("model", default="passat")
+    plant_mapping = vehicle.raw("mapping")
+    if plant_mapping is not None and not isinstance(plant_mapping, str):
+        raise vehicle.error("mapping", "expected a path to a plant mapping TOML file")
+    v0 = vehicle.number("v0_mps", default=0.0, lo=0.0, hi=70.0)
+    vehicle.finish()
+
+    ecu = r.sub("ecu")
+    calibration = ecu.raw("calibration")
+    if calibration is not None and not isinstance(calibration, str):
+        raise ecu.error("calibration", "expected a path to a calibration file")
+    corrupt_cal = ecu.boolean("corrupt_calibration", False)
+    ecu.finish()
+
+    host = r.sub("host")
+    mode = host.string("mode", default="script", choices=("script", "drive"))
+    engage_at = host.number("engage_at_s", default=0.5, lo=0.0)
+    accel_profile = host.profile("accel_profile")
+    speed_profile = host.profile("speed_profile")
+    steer_profile = host.profile("steer_profile")
+    stop_line = host.opt_number("stop_line_m", lo=0.0)
+    for i, (_, a) in enumerate(accel_profile):
+        if not -10.0 <= a <= 10.0:
+            raise host.error(f"accel_profile[{i}]", f"acceleration {a} m/s^2 is not physical")
+    if mode == "drive" and not speed_profile:
+        raise host.error("speed_profile", "drive mode needs a speed profile")
+    lead = None
+    if host.has("lead"):
+        lr = host.sub("lead")
+        lead = LeadCar(
+            gap0_m=lr.number("gap0_m", lo=1.0),
+            speed_profile=lr.profile("speed_profile"),
+            length_m=lr.number("length_m", default=4.8, lo=1.0, hi=20.0),
+            leaves_at_s=lr.opt_number("leaves_at_s", lo=0.0),
+        )
+        lr.finish()
+    host.finish()
+
+    plant = r.sub("plant")
+    grade = plant.profile("grade_pct")
+    wind = plant.profile("wind_mps")
+    noise = plant.sub("noise")
+    accel_noise = noise.number("accel_mps2", default=0.03, lo=0.0, hi=5.0)
+    wheel_noise = noise.number("wheel_speed_mps", default=0.02, lo=0.0, hi=5.0)
+    radar_noise = noise.number("radar_range_m", default=0.1, lo=0.0, hi=10.0)
+    noise.finish()
+    delay = plant.number("actuator_delay_ms", default=10.0, lo=0.0, hi=1000.0)
+    plant.finish()
+
+    raw_faults = r.raw("faults", []) or []
+    if not isinstance(raw_faults, list):
+        raise ScenarioError(source, "faults", "expected a list of fault events")
+    faults = tuple(_parse_fault(item, source, f"faults[{i}]") for i, item in enumerate(raw_faults))
+    raw_checks = r.raw("checks", []) or []
+    if not isinstance(raw_checks, list):
+        raise ScenarioError(source, "checks", "expected a list of checks")
+    checks = tuple(_parse_check(item, source, f"checks[{i}]") for i, item in enumerate(raw_checks))
+    fault_ref = r.opt_number("fault_ref_s", lo=0.0)
+    hold_until = r.opt_number("hold_until_s", lo=0.0)
+    extra = r.raw("extra", {}) or {}
+    r.finish()
+    if fault_ref is None and faults:
+        fault_ref = min(f.at_s for f in faults)
+    return Scenario(
+        name=name,
+        description=description,
+        source=source,
+        duration_s=duration_s,
+        v0_mps=v0,
+        model=model,
+        plant_mapping=plant_mapping,
+        calibration=calibration,
+        corrupt_calibration=corrupt_cal,
+        host_mode=mode,
+        engage_at_s=engage_at,
+        accel_profile=accel_profile,
+        speed_profile=speed_profile,
+        steer_profile=steer_profile,
+        stop_line_m=stop_line,
+        lead=lead,
+        grade_pct=grade,
+        wind_mps=wind,
+        accel_noise_mps2=accel_noise,
+        wheel_speed_noise_mps=wheel_noise,
+        radar_range_noise_m=radar_noise,
+        actuator_delay_ms=delay,
+        faults=faults,
+        checks=checks,
+        fault_ref_s=fault_ref,
+        hold_until_s=hold_until,
+        seed=seed,
+        hil_timeout_s=hil_timeout_s,
+        extra=dict(extra),
+    )
+
+
+def builtin_scenarios() -> dict[str, Path]:
+    """Scenarios shipped in hil/scenarios/, by bare name."""
+    folder = resources.files("bywire.hil") / "scenarios"
+    found: dict[str, Path] = {}
+    for entry in folder.iterdir():
+        path = Path(str(entry))
+        if path.suffix in SCENARIO_SUFFIXES:
+            found[path.stem] = path
+    return dict(sorted(found.items()))
+
+
+def resolve_scenario_path(name_or_file: str) -> Path:
+    path = Path(name_or_file)
+    if path.suffix in SCENARIO_SUFFIXES:
+        if not path.is_file():
+            raise ScenarioError(name_or_file, "", "no such scenario file")
+        return path
+    known = builtin_scenarios()
+    if name_or_file not in known:
+        raise ScenarioError(name_or_file, "", f"unknown scenario; shipped ones: {', '.join(known)}")
+    return known[name_or_file]
+
+
+def load_scenario(name_or_file: str) -> Scenario:
+    """Load a shipped scenario by bare name, or any scenario file by path."""
+    path = resolve_scenario_path(name_or_file)
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text) if path.suffix == ".toml" else yaml.safe_load(text)
+    except (yaml.YAMLError, tomllib.TOMLDecodeError) as exc:
+        raise ScenarioError(str(path), "", f"not valid {path.suffix[1:].upper()}: {exc}") from exc
+    return parse_scenario(data, str(path))
+
+
+__all__ = [
+    "Check",
+    "EcuState",
+    "FaultEvent",
+    "LeadCar",
+    "Scenario",
+    "ScenarioError",
+    "builtin_scenarios",
+    "load_scenario",
+    "parse_scenario",
+    "ramp_value",
+    "step_value",
+]

@@ -1,0 +1,74 @@
+"""Scenario files: strict parsing, errors that name the file and the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bywire.hil.scenario import (
+    ScenarioError,
+    builtin_scenarios,
+    load_scenario,
+    parse_scenario,
+    ramp_value,
+    step_value,
+)
+
+BASE = {"name": "x", "duration_s": 5.0, "host": {"accel_profile": [[0, 0.0], [1, 1.0]]}}
+
+
+def test_every_shipped_scenario_parses() -> None:
+    for name in builtin_scenarios():
+        assert load_scenario(name).name == name
+
+
+@pytest.mark.parametrize(
+    ("patch", "path", "words"),
+    [
+        ({"duration_s": "long"}, "duration_s", "expected a number"),
+        ({"durations": 3}, "durations", "unknown key"),
+        ({"faults": [{"kind": "estop", "at_s": 1.0, "mode": "STOP"}]}, "faults[0].mode", "expected one of"),
+        ({"faults": [{"kind": "meteor", "at_s": 1.0}]}, "faults[0].kind", "expected one of"),
+        ({"faults": [{"kind": "corrupt", "at_s": 1.0}]}, "faults[0].frames", "needs the list of frames"),
+        ({"faults": [{"kind": "estop", "at_s": -1.0, "mode": "RUN"}]}, "faults[0].at_s", ">= 0"),
+        ({"host": {"accel_profile": [[0, 0.0], [0, 1.0]]}}, "host.accel_profile[1]", "times must increase"),
+        ({"host": {"accel_profile": [[0, 50.0]]}}, "host.accel_profile[0]", "not physical"),
+        ({"host": {"mode": "drive"}}, "host.speed_profile", "drive mode needs"),
+        ({"checks": [{"metric": "x", "max": 1, "min": 0}]}, "checks[0]", "exactly one of"),
+        ({"vehicle": {"v0_mps": 500}}, "vehicle.v0_mps", "<= 70"),
+    ],
+)
+def test_bad_fields_are_named(patch: dict, path: str, words: str) -> None:
+    data = {**BASE, **patch}
+    with pytest.raises(ScenarioError) as err:
+        parse_scenario(data, "bad.yaml")
+    assert err.value.path == path
+    assert str(err.value).startswith(f"bad.yaml: {path}: ")
+    assert words in str(err.value)
+
+
+def test_unknown_scenario_lists_the_shipped_ones() -> None:
+    with pytest.raises(ScenarioError, match="accel_steps"):
+        load_scenario("no_such_scenario")
+
+
+def test_broken_yaml_names_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "broken.yaml"
+    path.write_text("name: [unclosed\n")
+    with pytest.raises(ScenarioError, match=r"broken\.yaml"):
+        load_scenario(str(path))
+
+
+def test_toml_scenarios_work_too(tmp_path: Path) -> None:
+    path = tmp_path / "t.toml"
+    path.write_text('name = "t"\nduration_s = 2.0\n[host]\naccel_profile = [[0, 0.0], [1, 0.5]]\n')
+    assert load_scenario(str(path)).accel_profile == ((0.0, 0.0), (1.0, 0.5))
+
+
+def test_profiles() -> None:
+    profile = ((0.0, 1.0), (2.0, 3.0))
+    assert step_value(profile, -1.0, default=7.0) == 7.0
+    assert step_value(profile, 1.9) == 1.0 and step_value(profile, 2.0) == 3.0
+    assert ramp_value(profile, 1.0) == pytest.approx(2.0)
+    assert ramp_value(profile, 5.0) == 3.0 and ramp_value((), 1.0, default=4.0) == 4.0
