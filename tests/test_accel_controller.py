@@ -3,12 +3,10 @@ anti-windup, and tracking on the point-mass plant (tests/plant_model.py)."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from typing import Any
 
+import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -37,19 +35,7 @@ from bywire.ecu.calibration import (
     default_calibration,
 )
 
-
-def _load_plant_model() -> Any:
-    name = "bywire_tests_plant_model"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("plant_model.py"))
-        assert spec is not None and spec.loader is not None
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-PointMassPlant = _load_plant_model().PointMassPlant
+PointMassPlant = _pm.PointMassPlant
 
 CAL = default_calibration()
 DT = 0.001

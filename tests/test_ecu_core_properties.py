@@ -8,12 +8,10 @@ standstill and hold within the bound computed from the calibration (`stop_time_b
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from typing import Any
 
+import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -23,19 +21,6 @@ from bywire.ecu.core import ActuatorCommand, stop_decel_mps2, stop_time_bound_s
 from bywire.ecu.safety import OVERRUN_STREAK_LIMIT, STOP_STATES, engage_allowed
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 
-
-def _load_plant_model() -> Any:
-    name = "bywire_tests_plant_model"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("plant_model.py"))
-        assert spec is not None and spec.loader is not None
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-_pm = _load_plant_model()
 CoreLoop = _pm.CoreLoop
 
 CAL = default_calibration()

@@ -7,12 +7,10 @@ Spec: ecu/safety.py and ecu/core.py docstrings; DARPA Urban Challenge rules 3.4.
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from typing import Any, ClassVar
 
+import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 
 from bywire.ecu.accel_controller import brake_bar, coast_accel_mps2
@@ -29,19 +27,6 @@ from bywire.ecu.safety import (
 )
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 
-
-def _load_plant_model() -> Any:
-    name = "bywire_tests_plant_model"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("plant_model.py"))
-        assert spec is not None and spec.loader is not None
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-_pm = _load_plant_model()
 CoreLoop = _pm.CoreLoop
 healthy_inputs = _pm.healthy_inputs
 
