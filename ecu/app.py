@@ -172,33 +172,45 @@ class EcuApp:
         self.node.tick(now_s)
 
     def _inputs(self, now_s: float) -> EcuInputs:
-        wheels = self._wheels.last
-        motion = self._motion.last
-        driver = self._driver.last
-        steer = self._steer.last
-        estop = self._estop.last
-        reports = self._reports
+        # Read every millisecond: plain loops and attribute reads, no generators or name lookups.
+        vehicle_fresh = True
+        vehicle_corrupt = False
         streak = self.config.corrupt_streak
-        request = self.node.latest_request()
+        for monitor in self._reports:
+            state = monitor.state
+            t = state.last_time_s
+            if t is None or now_s - t > monitor.timeout_s:
+                vehicle_fresh = False
+            if state.error_streak >= streak:
+                vehicle_corrupt = True
+        wheels = self._wheels.state.last_frame
+        motion = self._motion.state.last_frame
+        driver = self._driver.state.last_frame
+        steer = self._steer.state.last_frame
+        estop = self._estop.state.last_frame
+        node = self.node
+        request = node.latest_request()
         req = request[0] if request is not None else None
+        have_driver = isinstance(driver, DriverInputs)
+        have_steer = isinstance(steer, SteerReport)
         return EcuInputs(
             estop_mode=estop.mode if isinstance(estop, EstopRadio) else EstopMode.INVALID,
             estop_fresh=not self._estop.timed_out(now_s),
-            host_alive=self.node.host_alive(now_s),
+            host_alive=node.host_alive(now_s),
             request_accel_mps2=req.accel_mps2 if req is not None else 0.0,
             request_steer_angle_rad=req.steer_angle_rad if req is not None else 0.0,
             request_flags=req.flags if req is not None else RequestFlags.NONE,
-            request_fresh=self.node.request_fresh(now_s),
-            vehicle_fresh=not any(m.timed_out(now_s) for m in reports),
-            vehicle_corrupt=any(m.error_streak >= streak for m in reports),
+            request_fresh=node.request_fresh(now_s),
+            vehicle_fresh=vehicle_fresh,
+            vehicle_corrupt=vehicle_corrupt,
             calibration_valid=self.calibration is not None,
             overrun_streak=self.stats.overrun_streak,
-            driver_brake_pressed=driver.brake_pedal_pressed if isinstance(driver, DriverInputs) else False,
-            driver_throttle_pct=driver.throttle_pedal_pct if isinstance(driver, DriverInputs) else 0.0,
-            driver_steer_torque_nm=steer.steer_torque_nm if isinstance(steer, SteerReport) else 0.0,
+            driver_brake_pressed=driver.brake_pedal_pressed if have_driver else False,
+            driver_throttle_pct=driver.throttle_pedal_pct if have_driver else 0.0,
+            driver_steer_torque_nm=steer.steer_torque_nm if have_steer else 0.0,
             speed_mps=wheels.mean_mps if isinstance(wheels, WheelSpeeds) else 0.0,
             accel_meas_mps2=motion.long_accel_mps2 if isinstance(motion, Motion) else 0.0,
-            steer_angle_meas_rad=steer.steer_angle_rad if isinstance(steer, SteerReport) else 0.0,
+            steer_angle_meas_rad=steer.steer_angle_rad if have_steer else 0.0,
             unlatch=self._unlatch_pending,
         )
 

@@ -9,6 +9,7 @@ safety scenario that silently does nothing is worse than no scenario.
 from __future__ import annotations
 
 import itertools
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -293,6 +294,9 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     """Build a `Scenario` from parsed YAML/TOML data; `source` names the file in errors."""
     r = _Reader(data, source, "")
     name = r.string("name")
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", name):
+        # The name becomes file names in reports: keep it to a safe, non-empty identifier.
+        raise r.error("name", f"expected 1-64 letters, digits, '_', '-' or '.', got {name!r}")
     description = r.string("description", default="")
     duration_s = r.number("duration_s", lo=0.1, hi=24 * 3600.0)
     seed = int(r.number("seed", default=1.0, lo=0.0))

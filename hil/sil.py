@@ -31,6 +31,7 @@ from bywire.protocol.canopen_node import HostMaster
 from bywire.vehicle_models.fmu_vehicle import open_vehicle
 
 ECU_PERIOD_S = 0.001
+RADAR_FILTER = [{"can_id": 0x300, "can_mask": 0x7FF, "extended": False}]  # RADAR_Target only
 
 
 @dataclass
@@ -56,8 +57,8 @@ def run_sil(
     vehicle_ch, link_ch = f"sil-vehicle-{tag}", f"sil-link-{tag}"
     buses: list[can.BusABC] = []
 
-    def bus(channel: str) -> SimVirtualBus:
-        b = SimVirtualBus(channel, clock)
+    def bus(channel: str, **kwargs: Any) -> SimVirtualBus:
+        b = SimVirtualBus(channel, clock, **kwargs)
         buses.append(b)
         return b
 
@@ -72,7 +73,9 @@ def run_sil(
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
         link = HostMaster(bus(link_ch), clock)
-        host = HostAgent(scenario, link, t0_s=0.0, sensor_bus=bus(vehicle_ch), trace=host_trace)
+        host = HostAgent(
+            scenario, link, t0_s=0.0, sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER), trace=host_trace
+        )
         n = round(scenario.duration_s / ECU_PERIOD_S)
         wall0 = time.perf_counter()
         report_every = max(1, n // 20)

@@ -4,12 +4,14 @@ The stock VirtualBus deep-copies every frame for every receiver and stamps it wi
 lockstep simulation that is both the largest cost per simulated millisecond and the wrong clock. This
 subclass keeps python-can's channel registry and queues (so stock `virtual` buses on the same channel,
 a recorder for example, still see every frame) but hands receivers a cheap copy stamped with the
-simulated time, and gives `recv(timeout=0)` a lock-light fast path.
+simulated time, applies a receiver's CAN filters before queueing (a host that only wants the radar
+frame does not pay for the rest of vehicle CAN), and gives `recv(timeout=0)` a lock-light fast path.
 """
 
 from __future__ import annotations
 
 import queue
+from typing import Any, ClassVar
 
 import can
 from can.interfaces.virtual import VirtualBus
@@ -20,15 +22,22 @@ from bywire.clock import Clock
 class SimVirtualBus(VirtualBus):
     """A `virtual` bus whose frames carry simulated receive timestamps; for single-threaded lockstep use."""
 
-    def __init__(self, channel: str, clock: Clock) -> None:
-        super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=True)
+    _by_queue: ClassVar[dict[int, SimVirtualBus]] = {}
+
+    def __init__(self, channel: str, clock: Clock, **kwargs: Any) -> None:
+        super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=True, **kwargs)
         self._clock = clock
+        SimVirtualBus._by_queue[id(self.queue)] = self
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
         now = self._clock.now()
+        by_queue = SimVirtualBus._by_queue
         for bus_queue in self.channel:
             if bus_queue is self.queue:
+                continue
+            receiver = by_queue.get(id(bus_queue))
+            if receiver is not None and receiver.filters and not receiver._matches_filters(msg):
                 continue
             bus_queue.put_nowait(
                 can.Message(
@@ -47,10 +56,15 @@ class SimVirtualBus(VirtualBus):
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if timeout == 0:
-            if not self.queue.queue:  # the Queue's deque: peeking is safe single-threaded, and 10x cheaper
+            # Frames were filtered when queued; peeking the Queue's deque is safe single-threaded.
+            if not self.queue.queue:
                 return None
             try:
                 return self.queue.get_nowait()
             except queue.Empty:
                 return None
         return super().recv(timeout)
+
+    def shutdown(self) -> None:
+        SimVirtualBus._by_queue.pop(id(self.queue), None)
+        super().shutdown()

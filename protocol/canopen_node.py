@@ -385,6 +385,9 @@ class EventTimer:
         self._next_us = None
 
     def due(self, now_s: float) -> bool:
+        next_us = self._next_us
+        if next_us is not None and now_s * 1e6 < next_us - 1:
+            return False  # clearly not yet: spares the exact integer conversion on most calls
         now_us = _us(now_s)
         if self._next_us is None:
             self._next_us = now_us + self._period_us
@@ -415,6 +418,7 @@ class HeartbeatConsumer:
         self.bootups = 0
         self.timeouts = 0  # fresh -> stale transitions seen by update()
         self._was_fresh = False
+        self._last_rx_us = 0
 
     @property
     def cob_id(self) -> int:
@@ -431,12 +435,13 @@ class HeartbeatConsumer:
             self.bootups += 1
         self.state = state
         self.last_rx_s = now_s
+        self._last_rx_us = _us(now_s)
         return True
 
     def fresh(self, now_s: float) -> bool:
         if self.last_rx_s is None:
             return False
-        return _us(now_s) - _us(self.last_rx_s) <= self.timeout_ms * 1000
+        return _us(now_s) - self._last_rx_us <= self.timeout_ms * 1000
 
     def alive(self, now_s: float, states: tuple[NmtState, ...] | None = None) -> bool:
         """Fresh, and (if `states` is given) last reporting one of `states`."""
@@ -571,6 +576,7 @@ class EcuNode:
         self.sdo_rejected = 0
         self.dispatch_errors = 0
         self._latest: tuple[HostRequest, float] | None = None
+        self._latest_us = 0
         self._last_counter: int | None = None
         self._request_was_fresh = False
         self._reported_faults = Fault.NONE
@@ -642,7 +648,7 @@ class EcuNode:
         """A request was accepted within the RPDO1 deadline (0x1400 sub5, default 100 ms)."""
         if self._latest is None:
             return False
-        return _us(now_s) - _us(self._latest[1]) <= self.request_deadline_ms * 1000
+        return _us(now_s) - self._latest_us <= self.request_deadline_ms * 1000
 
     def host_alive(self, now_s: float) -> bool:
         """Host heartbeat fresh within 0x1016's time AND the host reports OPERATIONAL."""
@@ -743,6 +749,7 @@ class EcuNode:
         self._last_counter = request.counter
         stats.accepted += 1
         self._latest = (request, self._rx_now_s)
+        self._latest_us = _us(self._rx_now_s)
         for spec in REQUEST_FIELDS:
             self._store(REQUEST_INDEX, spec.subindex, raw[spec.name])
 

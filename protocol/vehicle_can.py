@@ -632,25 +632,26 @@ class _RxState:
 
 
 class RxMonitor:
-    """One message's receiver state seen through attributes only: the ECU reads a handful of these
-    every millisecond, and a name lookup per read would cost more than the reads themselves."""
+    """One message's live receiver state, resolved once: the ECU reads a handful of these every
+    millisecond, and a name lookup per read would cost more than the reads themselves. `state`
+    is the receiver's own record (read it, never write it)."""
 
-    __slots__ = ("_state", "timeout_s")
+    __slots__ = ("state", "timeout_s")
 
     def __init__(self, state: _RxState, timeout_s: float) -> None:
-        self._state = state
+        self.state = state
         self.timeout_s = timeout_s
 
     @property
     def last(self) -> VehicleFrame | None:
-        return self._state.last_frame
+        return self.state.last_frame
 
     @property
     def error_streak(self) -> int:
-        return self._state.error_streak
+        return self.state.error_streak
 
     def timed_out(self, now_s: float) -> bool:
-        t = self._state.last_time_s
+        t = self.state.last_time_s
         return t is None or now_s - t > self.timeout_s
 
 
