@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,6 +34,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--host-link", required=True, help="bus URL of the host link (a CAN bus, not udp://)"
     )
     unlatch.add_argument("--timeout", type=float, default=2.0, help="SDO timeout in seconds")
+    calibrate = sub.add_parser(
+        "calibrate", help="write a calibration into a running ECU over the host link (SDO)"
+    )
+    calibrate.add_argument("calibration", type=Path, help="calibration file (JSON)")
+    calibrate.add_argument(
+        "--host-link", required=True, help="bus URL of the host link (a CAN bus, not udp://)"
+    )
+    calibrate.add_argument("--timeout", type=float, default=5.0, help="SDO timeout in seconds")
     return parser
 
 
@@ -44,7 +53,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         return cmd_flash(args)
     if args.ecu_command == "unlatch":
-        return _unlatch(args.host_link, args.timeout)
+        return _service(args.host_link, args.timeout, "unlatch", None)
+    if args.ecu_command == "calibrate":
+        return _service(args.host_link, args.timeout, "calibrate", args.calibration)
     if args.store is not None:
         from bywire.ecu.boot import cmd_run_from_store
 
@@ -77,22 +88,43 @@ def _strip_options(argv: list[str], takes_value: dict[str, bool]) -> list[str]:
 SERVICE_TOOL_NODE_ID = 0x7E  # not the host's 0x01: the tool's boot-up must not look like a host reboot
 
 
-def _unlatch(url: str, timeout_s: float) -> int:
+def _service(url: str, timeout_s: float, what: str, calibration: Path | None) -> int:
+    """A service tool's SDO request to a running ECU: the DISABLE unlatch, or a new calibration.
+
+    A calibration is checked here first (so a bad file is refused with its field named before
+    anything is sent), then validated again by the ECU, which stores it in its non-volatile
+    store when it runs from one and refuses it while it actuates.
+    """
     from bywire.clock import WallClock
+    from bywire.ecu.calibration import CalibrationError, loads_calibration
     from bywire.protocol.bus_url import open_bus
     from bywire.protocol.canopen_node import EcuRefusedError, HostMaster
 
+    data = b""
+    if calibration is not None:
+        try:
+            data = calibration.read_bytes()
+            loads_calibration(data, str(calibration))
+        except (OSError, CalibrationError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     bus = open_bus(url)
     try:
         tool = HostMaster(bus, WallClock(), node_id=SERVICE_TOOL_NODE_ID, sdo_timeout_s=timeout_s)
-        tool.unlatch()
+        if calibration is None:
+            tool.unlatch()
+        else:
+            tool.write_calibration(data)
     except EcuRefusedError as exc:
-        print(f"error: the ECU refused the unlatch: {exc}", file=sys.stderr)
+        print(f"error: the ECU refused the {what}: {exc}", file=sys.stderr)
         return 1
     except Exception as exc:  # no answer: wrong bus, ECU off
-        print(f"error: no unlatch acknowledgement from the ECU on {url}: {exc}", file=sys.stderr)
+        print(f"error: no {what} acknowledgement from the ECU on {url}: {exc}", file=sys.stderr)
         return 1
     finally:
         bus.shutdown()
-    print("unlatch sent and acknowledged; the ECU leaves DISABLED once the E-stop radio says RUN or PAUSE")
+    if calibration is None:
+        print("unlatch acknowledged; the ECU leaves DISABLED once the E-stop radio no longer says DISABLE")
+    else:
+        print(f"calibration {calibration} accepted by the ECU")
     return 0

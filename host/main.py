@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rt-priority",
         type=int,
         default=0,
-        help="SCHED_FIFO priority (0: normal scheduling); the HIL runner uses 60, below ECU and plant",
+        help="SCHED_FIFO priority (0: normal scheduling); the HIL runner uses 72, below the ECU (80)",
     )
 
 

@@ -62,8 +62,16 @@ def _mutate(node: Any, draw: Any) -> Any:
         if choice == 0:
             del out[key]
         elif choice == 1:
-            out[key] = draw(st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
-                                      st.floats(allow_nan=True), st.text(max_size=8), st.lists(st.integers(), max_size=3)))
+            out[key] = draw(
+                st.one_of(
+                    st.none(),
+                    st.booleans(),
+                    st.integers(-(10**6), 10**6),
+                    st.floats(allow_nan=True),
+                    st.text(max_size=8),
+                    st.lists(st.integers(), max_size=3),
+                )
+            )
         elif choice == 2:
             out[key + "_x"] = 1
         else:

@@ -104,3 +104,60 @@ def test_bench_ecu_writes_the_contract_json(tmp_path: Path) -> None:
     assert {"p50", "p99", "max"} <= set(doc["compute_us"])
     assert doc["cycles"] >= 3000 and doc["baseline"]["cycles"] >= 2000
     assert "median" in proc.stdout or "p99" in proc.stdout
+
+
+def test_service_tool_calibrates_a_running_ecu_over_sdo_and_it_is_stored(tmp_path: Path) -> None:
+    import dataclasses
+    import time
+
+    from bywire.ecu.calibration import default_calibration, dumps_calibration, load_calibration
+    from bywire.protocol.bus_url import serve_virtual_bus, stop_bus_server
+
+    store = tmp_path / "store"
+    v1 = tmp_path / "v1.json"
+    v1.write_bytes(dumps_calibration(default_calibration()))
+    flash = _bywire("ecu", "flash", "--store", str(store), "--firmware", "--calibration", str(v1))
+    assert flash.returncode == 0, flash.stdout + flash.stderr
+    server, thread = serve_virtual_bus(0, "link")
+    url = f"remote:ws://127.0.0.1:{server.server_port}/"
+    ecu = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "bywire",
+            "ecu",
+            "run",
+            "--store",
+            str(store),
+            "--host-link",
+            url,
+            "--vehicle-bus",
+            "virtual:none",
+            "--seconds",
+            "60",
+            "--no-rt",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not (store / "run" / "boot-status.json").exists():
+            assert ecu.poll() is None and time.monotonic() < deadline, "the ECU did not boot"
+            time.sleep(0.2)
+        v2 = tmp_path / "v2.json"
+        new = dataclasses.replace(default_calibration(), version=default_calibration().version + 1)
+        v2.write_bytes(dumps_calibration(new))
+        ok = _bywire("ecu", "calibrate", str(v2), "--host-link", url, timeout=60)
+        assert ok.returncode == 0, ok.stdout + ok.stderr
+        assert load_calibration(store / "calibration" / "current.json").version == new.version
+        bad = tmp_path / "bad.json"
+        bad.write_bytes(dumps_calibration(new).replace(b'"version":', b'"versoin":'))
+        refused = _bywire("ecu", "calibrate", str(bad), "--host-link", url, timeout=60)
+        assert refused.returncode == 1 and "crc32" in refused.stderr
+        assert load_calibration(store / "calibration" / "current.json").version == new.version
+    finally:
+        ecu.terminate()
+        ecu.wait(20)
+        stop_bus_server(server, thread)
