@@ -119,3 +119,28 @@ def test_a_failing_check_fails_the_verdict(tmp_path: Path) -> None:
     result = run_scenario(str(path), mode="sil")
     assert result["verdict"] == "fail"
     assert [c["passed"] for c in result["checks"]] == [False, True, True]
+
+
+def test_sil_records_every_frame_of_both_buses(tmp_path: Path) -> None:
+    record = tmp_path / "frames.asc"
+    scenario = dataclasses.replace(load_scenario("estop_disable"), duration_s=5.0)
+    run_sil(scenario, record=record)
+    text = record.read_text()
+    lines = [line for line in text.splitlines() if " Rx " in line]
+    ids = {line.split()[2] for line in lines}
+    assert {"100", "F0", "120", "121", "122", "123"} <= ids, ids  # DBW_Command, E-stop, gateway reports
+    assert {"210", "190", "710", "701"} <= ids, ids  # request RPDO, status TPDO1, both heartbeats
+    assert "90" in ids  # the EMCY of the DISABLE
+
+
+def test_cli_refuses_a_bad_scenario_with_the_field(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    path = tmp_path / "typo.yaml"
+    path.write_text("name: typo\nduration_s: 5\nfualts: []\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "bywire", "hil", "run", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2
+    assert f"{path}: fualts: unknown key" in proc.stderr
