@@ -12,10 +12,9 @@ from bywire.ecu.realtime import apply_realtime
 from bywire.hil.plant import Plant
 from bywire.hil.process_util import StopFlag, wait_for_t0
 from bywire.hil.scenario import load_scenario
-from bywire.hil.sil import vehicle_start_values
+from bywire.hil.sil import open_scenario_vehicle
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
 from bywire.protocol.bus_url import open_bus
-from bywire.vehicle_models.fmu_vehicle import open_vehicle
 
 PLANT_PERIOD_S = 0.001
 
@@ -42,7 +41,7 @@ def main(args: argparse.Namespace) -> int:
     stop = StopFlag()
     bus = open_bus(args.vehicle_bus)
     trace = TraceWriter(args.trace, PLANT_COLUMNS, flush_every=100)
-    vehicle = open_vehicle(scenario.model, start_values=vehicle_start_values(scenario))
+    vehicle = open_scenario_vehicle(scenario)
     if args.rt_priority:
         print(f"plant: real-time: {apply_realtime(priority=args.rt_priority).summary()}", flush=True)
     try:

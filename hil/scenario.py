@@ -290,6 +290,14 @@ def _parse_check(item: Any, source: str, path: str) -> Check:
     return Check(name=name, metric=metric, op=op, limit=limit)
 
 
+def _relative_to(source: str, path: str) -> str:
+    """Paths in a scenario file are relative to the file's folder (absolute ones stay as they are)."""
+    p = Path(path).expanduser()
+    if p.is_absolute() or not Path(source).is_file():
+        return str(p)
+    return str(Path(source).parent / p)
+
+
 def parse_scenario(data: Any, source: str) -> Scenario:
     """Build a `Scenario` from parsed YAML/TOML data; `source` names the file in errors."""
     r = _Reader(data, source, "")
@@ -307,6 +315,13 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     plant_mapping = vehicle.raw("mapping")
     if plant_mapping is not None and not isinstance(plant_mapping, str):
         raise vehicle.error("mapping", "expected a path to a plant mapping TOML file")
+    if model.endswith(".fmu"):
+        # A vendor's FMU: the plant needs to know which of its variables play which role.
+        if plant_mapping is None:
+            raise vehicle.error("mapping", f"a ready-made FMU ({model}) needs a plant mapping TOML file")
+        model = _relative_to(source, model)
+    if plant_mapping is not None:
+        plant_mapping = _relative_to(source, plant_mapping)
     v0 = vehicle.number("v0_mps", default=0.0, lo=0.0, hi=70.0)
     vehicle.finish()
 
@@ -314,6 +329,8 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     calibration = ecu.raw("calibration")
     if calibration is not None and not isinstance(calibration, str):
         raise ecu.error("calibration", "expected a path to a calibration file")
+    if calibration is not None:
+        calibration = _relative_to(source, calibration)
     corrupt_cal = ecu.boolean("corrupt_calibration", False)
     ecu.finish()
 

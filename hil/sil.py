@@ -28,7 +28,7 @@ from bywire.hil.sil_bus import SimVirtualBus
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, TraceWriter
 from bywire.host.agent import HostAgent
 from bywire.protocol.canopen_node import HostMaster
-from bywire.vehicle_models.fmu_vehicle import open_vehicle
+from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001
 RADAR_FILTER = [{"can_id": 0x300, "can_mask": 0x7FF, "extended": False}]  # RADAR_Target only
@@ -41,8 +41,10 @@ class RunResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def vehicle_start_values(scenario: Scenario) -> dict[str, float]:
-    return {"v0_mps": scenario.v0_mps} if scenario.v0_mps else {}
+def open_scenario_vehicle(scenario: Scenario) -> FmuVehicle:
+    """The scenario's plant model: a bundled model by name, or any FMU with its role mapping."""
+    start = {"v0_mps": scenario.v0_mps} if scenario.v0_mps else {}
+    return open_vehicle(scenario.model, start_values=start, mapping=scenario.plant_mapping)
 
 
 def run_sil(
@@ -68,7 +70,7 @@ def run_sil(
     cal, cal_error = load_run_calibration(scenario, run_dir)
     plant_trace = TraceWriter(run_dir / "plant.csv" if run_dir else None, PLANT_COLUMNS, flush_every=1000)
     host_trace = TraceWriter(run_dir / "host.csv" if run_dir else None, HOST_COLUMNS, flush_every=1000)
-    vehicle = open_vehicle(scenario.model, start_values=vehicle_start_values(scenario))
+    vehicle = open_scenario_vehicle(scenario)
     try:
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
