@@ -28,8 +28,21 @@ class Recorder:
                 msg = bus.recv(timeout=0)
                 if msg is None:
                     break
-                msg.channel = name
-                self.logger(msg)
+                # A copy: in SIL receivers share one frame object, which must stay untouched.
+                self.logger(
+                    can.Message(
+                        timestamp=msg.timestamp,
+                        arbitration_id=msg.arbitration_id,
+                        is_extended_id=msg.is_extended_id,
+                        is_remote_frame=msg.is_remote_frame,
+                        is_error_frame=msg.is_error_frame,
+                        dlc=msg.dlc,
+                        data=msg.data,
+                        is_fd=msg.is_fd,
+                        channel=name,
+                        is_rx=True,
+                    )
+                )
                 n += 1
         self.frames += n
         return n

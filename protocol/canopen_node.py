@@ -554,6 +554,7 @@ class EcuNode:
         self._eds_path = Path(eds_path) if eds_path is not None else EDS_PATH
         self._max_frames = max_frames_per_poll
         self.od = load_ecu_od(node_id, eds_path)
+        self._var_cache: dict[tuple[int, int], ODVariable] = {}
         self.rpdo = _request_layout(self.od)
         self.tpdos = _status_layouts(self.od)
         self.emcy_cob_id = int(od_default(self.od, EMCY_COB_INDEX))
@@ -884,7 +885,11 @@ class EcuNode:
 
     def _store(self, index: int, subindex: int, value: int | str | bytes) -> None:
         # Straight into the data store: internal updates must not run the SDO write checks.
-        var = _od_var(self.od, index, subindex)
+        # The status record is stored every 20 ms: resolve each object once.
+        key = (index, subindex)
+        var = self._var_cache.get(key)
+        if var is None:
+            var = self._var_cache[key] = _od_var(self.od, index, subindex)
         self.node.data_store.setdefault(index, {})[subindex] = bytes(var.encode_raw(value))
 
     def _note_refusal(self, reason: str) -> None:
