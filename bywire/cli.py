@@ -183,6 +183,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
     except KeyboardInterrupt:
         return 130
+    except RuntimeError as exc:  # a HIL process that did not start or died: its log tail says why
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except ValueError as exc:  # scenario, calibration and URL errors say what and where
         print(f"error: {exc}", file=sys.stderr)
         return 2

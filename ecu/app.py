@@ -30,7 +30,7 @@ from bywire.ecu.calibration import (
     dumps_calibration,
     loads_calibration,
 )
-from bywire.ecu.core import CoreState, core_step, initial_core_state
+from bywire.ecu.core import ActuatorCommand, CoreState, core_step, initial_core_state
 from bywire.ecu.executive import CycleStats
 from bywire.ecu.safety import EcuInputs
 from bywire.protocol.canopen_node import ABORT_DEVICE_STATE, EcuNode, RefusedWrite
@@ -104,7 +104,7 @@ class EcuApp:
         self._unlatch_pending = False
         self._next_command_s = -math.inf
         self._next_status_s = -math.inf
-        self.last_command = None
+        self.last_command: ActuatorCommand | None = None
         if calibration is not None:
             self.node.set_calibration(dumps_calibration(calibration), calibration.version)
 
@@ -191,8 +191,14 @@ class EcuApp:
         node = self.node
         request = node.latest_request()
         req = request[0] if request is not None else None
-        have_driver = isinstance(driver, DriverInputs)
-        have_steer = isinstance(steer, SteerReport)
+        brake_pressed, throttle_pct = (
+            (driver.brake_pedal_pressed, driver.throttle_pedal_pct)
+            if isinstance(driver, DriverInputs)
+            else (False, 0.0)
+        )
+        steer_torque, steer_angle = (
+            (steer.steer_torque_nm, steer.steer_angle_rad) if isinstance(steer, SteerReport) else (0.0, 0.0)
+        )
         return EcuInputs(
             estop_mode=estop.mode if isinstance(estop, EstopRadio) else EstopMode.INVALID,
             estop_fresh=not self._estop.timed_out(now_s),
@@ -205,12 +211,12 @@ class EcuApp:
             vehicle_corrupt=vehicle_corrupt,
             calibration_valid=self.calibration is not None,
             overrun_streak=self.stats.overrun_streak,
-            driver_brake_pressed=driver.brake_pedal_pressed if have_driver else False,
-            driver_throttle_pct=driver.throttle_pedal_pct if have_driver else 0.0,
-            driver_steer_torque_nm=steer.steer_torque_nm if have_steer else 0.0,
+            driver_brake_pressed=brake_pressed,
+            driver_throttle_pct=throttle_pct,
+            driver_steer_torque_nm=steer_torque,
             speed_mps=wheels.mean_mps if isinstance(wheels, WheelSpeeds) else 0.0,
             accel_meas_mps2=motion.long_accel_mps2 if isinstance(motion, Motion) else 0.0,
-            steer_angle_meas_rad=steer.steer_angle_rad if have_steer else 0.0,
+            steer_angle_meas_rad=steer_angle,
             unlatch=self._unlatch_pending,
         )
 
@@ -296,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bywire ecu run", description="run the ECU firmware at 1 kHz")
     add_run_arguments(parser)
     args = parser.parse_args(argv)
+    cal: Calibration | None
+    cal_error: str | None
     if args.no_calibration:
         cal, cal_error = None, "no calibration"
     else:
@@ -349,10 +357,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         executive.run(stop=lambda: stopping or clock.now() >= end, progress=progress)
     finally:
-        snapshot = stats.snapshot()
+        snapshot: dict[str, Any] = stats.snapshot()
         snapshot["scheduler"] = scheduler
         snapshot["final_state"] = app.core.safety.state.name
-        snapshot["vehicle_rx"] = app.rx_stats()["total"] if "total" in app.rx_stats() else app.rx_stats()
+        snapshot["vehicle_rx"] = app.rx_stats()["total"]
         if args.stats_json is not None:
             args.stats_json.parent.mkdir(parents=True, exist_ok=True)
             args.stats_json.write_text(json.dumps(snapshot, indent=2) + "\n", encoding="utf-8")

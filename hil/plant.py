@@ -28,6 +28,7 @@ from bywire.protocol.vehicle_can import (
     RadarTarget,
     SteerReport,
     VehicleCodec,
+    VehicleFrame,
     VehicleRx,
     WheelSpeeds,
 )
@@ -210,7 +211,7 @@ class Plant:
             self._counters[name] = (counter + 1) & 0x0F
         return counter
 
-    def _emit(self, name: str, frame: object, now_s: float, t: float) -> None:
+    def _emit(self, name: str, frame: VehicleFrame, now_s: float, t: float) -> None:
         if not self._frame_faults:
             msg = self.codec.encode(frame, self._next_counter(name, t), saturate=True, timestamp_s=now_s)
             self.bus.send(msg)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 from bywire.clock import WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
@@ -52,7 +53,7 @@ def main(args: argparse.Namespace) -> int:
         executive = CyclicExecutive(PLANT_PERIOD_S, clock, plant.step, stats)
         clock.sleep_until(t0)
         executive.run(stop=lambda: stop() or clock.now() >= end)
-        snap = stats.snapshot()
+        snap: dict[str, Any] = stats.snapshot()
         print(
             f"plant: done, {snap['cycles']} cycles, {snap['overruns']} overruns, "
             f"lateness p99 {snap['lateness_us']['p99']:.0f} us",
