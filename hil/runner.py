@@ -231,6 +231,8 @@ def run_hil(
                 "-",
                 "--seconds",
                 repr(scenario.duration_s + 2.0),
+                "--rt-priority",
+                str(HOST_RT_PRIORITY),
             ],
             run_dir / "host.log",
             True,

@@ -188,7 +188,8 @@ class FaultEvent:
     delay_ms: float = 0.0
 
     def active(self, t_s: float) -> bool:
-        return self.at_s <= t_s < self.at_s + self.duration_s
+        """In effect at t_s: from at_s for duration_s, or to the end of the run when duration_s is 0."""
+        return self.at_s <= t_s and (self.duration_s == 0.0 or t_s < self.at_s + self.duration_s)
 
 
 @dataclass(frozen=True)

@@ -79,24 +79,19 @@ class HostAgent:
         return self._next_s
 
     def _fault_active(self, kind: str, t: float) -> bool:
-        return any(
-            f.kind == kind and f.at_s <= t and (f.duration_s == 0.0 or f.active(t))
-            for f in self.scenario.faults
-        )
+        return any(f.kind == kind and f.active(t) for f in self.scenario.faults)
 
     def _pulse(self, kind: str, t: float) -> bool:
         return any(f.kind == kind and f.at_s <= t < f.at_s + REARM_PULSE_S for f in self.scenario.faults)
 
     def step(self, now_s: float) -> None:
-        if self.state.stopped:
+        if self.state.stopped or now_s < self._next_s:
             return
         t = now_s - self.t0_s
         if self.in_process_faults and (
             self._fault_active("host_freeze", t) or self._fault_active("host_kill", t)
         ):
             self.state.stopped = True
-            return
-        if now_s < self._next_s:
             return
         self._poll_inputs(now_s)  # frames wait in the bus queues until the next control step
         self._next_s += HOST_PERIOD_S
