@@ -10,6 +10,8 @@ from pathlib import Path
 
 import can
 
+from bywire.hil.sil_bus import received_copy
+
 
 class Recorder:
     """Drains listener buses into one python-can log file; call `pump()` regularly, `close()` at the end."""
@@ -29,20 +31,7 @@ class Recorder:
                 if msg is None:
                     break
                 # A copy: in SIL receivers share one frame object, which must stay untouched.
-                self.logger(
-                    can.Message(
-                        timestamp=msg.timestamp,
-                        arbitration_id=msg.arbitration_id,
-                        is_extended_id=msg.is_extended_id,
-                        is_remote_frame=msg.is_remote_frame,
-                        is_error_frame=msg.is_error_frame,
-                        dlc=msg.dlc,
-                        data=msg.data,
-                        is_fd=msg.is_fd,
-                        channel=name,
-                        is_rx=True,
-                    )
-                )
+                self.logger(received_copy(msg, msg.timestamp, name))
                 n += 1
         self.frames += n
         return n

@@ -19,6 +19,22 @@ from can.interfaces.virtual import VirtualBus
 from bywire.clock import Clock
 
 
+def received_copy(msg: can.Message, timestamp_s: float, channel: str | int | None) -> can.Message:
+    """A frame as a receiver sees it: the same content, a new receive time and channel."""
+    return can.Message(
+        timestamp=timestamp_s,
+        arbitration_id=msg.arbitration_id,
+        is_extended_id=msg.is_extended_id,
+        is_remote_frame=msg.is_remote_frame,
+        is_error_frame=msg.is_error_frame,
+        dlc=msg.dlc,
+        data=bytes(msg.data),
+        is_fd=msg.is_fd,
+        channel=channel,
+        is_rx=True,
+    )
+
+
 class SimVirtualBus(VirtualBus):
     """A `virtual` bus whose frames carry simulated receive timestamps; for single-threaded lockstep use."""
 
@@ -31,28 +47,16 @@ class SimVirtualBus(VirtualBus):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
-        now = self._clock.now()
+        # One received copy shared by every receiver: receivers treat frames as read-only.
+        rx = received_copy(msg, self._clock.now(), self.channel_id)
         by_queue = SimVirtualBus._by_queue
         for bus_queue in self.channel:
             if bus_queue is self.queue:
                 continue
             receiver = by_queue.get(id(bus_queue))
-            if receiver is not None and receiver.filters and not receiver._matches_filters(msg):
+            if receiver is not None and receiver.filters and not receiver._matches_filters(rx):
                 continue
-            bus_queue.put_nowait(
-                can.Message(
-                    timestamp=now,
-                    arbitration_id=msg.arbitration_id,
-                    is_extended_id=msg.is_extended_id,
-                    is_remote_frame=msg.is_remote_frame,
-                    is_error_frame=msg.is_error_frame,
-                    dlc=msg.dlc,
-                    data=bytes(msg.data),
-                    is_fd=msg.is_fd,
-                    channel=self.channel_id,
-                    is_rx=True,
-                )
-            )
+            bus_queue.put_nowait(rx)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if timeout == 0:
