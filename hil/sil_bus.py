@@ -19,7 +19,9 @@ from can.interfaces.virtual import VirtualBus
 from bywire.clock import Clock
 
 
-def received_copy(msg: can.Message, timestamp_s: float, channel: str | int | None) -> can.Message:
+def received_copy(
+    msg: can.Message, timestamp_s: float, channel: can.typechecking.Channel | None
+) -> can.Message:
     """A frame as a receiver sees it: the same content, a new receive time and channel."""
     return can.Message(
         timestamp=timestamp_s,
