@@ -23,7 +23,8 @@ States (bywire.protocol.ecu_types.EcuState) and transitions, in priority order e
 6. ENGAGED: a stop fault -> SAFE_STOP; else PAUSE -> PAUSED; else the host dropping ENGAGE ->
    SAFE_STOP with HOST_STOP_REQUEST (a host that lets go asks for a controlled stop).
 7. PAUSED: a stop fault -> SAFE_STOP; E-stop RUN -> ENGAGED if every engage precondition holds
-   (the host still asks for ENGAGE), else READY.
+   (the host still asks for ENGAGE), else SAFE_STOP with HOST_STOP_REQUEST: the car stays held
+   until the host re-arms it, rather than being released (READY is passive) by the radio alone.
 8. SAFE_STOP -> READY on a REARM rising edge with no active fault at all and at standstill.
 
 Stop faults (`STOP_FAULTS`): host heartbeat lost, host request stale or not finite, vehicle data
@@ -262,7 +263,12 @@ def safety_step(st: SafetyState, inp: EcuInputs, cal: Calibration) -> tuple[Safe
         if a & _STOP_FAULTS:
             new, latched = _SAFE_STOP, Fault(a & _STOP_FAULTS)
         elif not a & _ESTOP_PAUSE:  # RUN and fresh: no ESTOP_TIMEOUT, which is a stop fault
-            new, latched = (_ENGAGED, Fault.NONE) if _engage_ok(a, flags) else (_READY, Fault.NONE)
+            # Releasing the brakes of a stopped, possibly unattended car must be an explicit act
+            # (the host's ENGAGE, or its REARM from the hold), never a side effect of the radio.
+            if _engage_ok(a, flags):
+                new, latched = _ENGAGED, Fault.NONE
+            else:
+                new, latched = _SAFE_STOP, Fault.HOST_STOP_REQUEST
     elif s == _SAFE_STOP:
         standstill = vehicle_usable(inp) and inp.speed_mps < cal.standstill_speed_mps
         if rearm_edge and a == 0 and standstill:

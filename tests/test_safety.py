@@ -248,10 +248,16 @@ class TestPauseResume:
         loop.run(3.0, request_accel_mps2=1.0)
         assert loop.plant.speed_mps > 1.0
 
-    def test_run_without_engage_request_goes_ready(self) -> None:
+    def test_run_without_engage_request_keeps_holding_until_rearm(self) -> None:
         loop = engaged(10.0, dt_s=0.01)
         loop.run(8.0, estop_mode=EstopMode.PAUSE, request_flags=RequestFlags.NONE)
         assert loop.cmd.state == EcuState.PAUSED  # dropping ENGAGE in a pause is not a fault
+        cmd = loop.step(request_flags=RequestFlags.NONE)
+        # RUN alone must not release the brakes of a stopped car nobody asks to drive.
+        assert cmd.state == EcuState.SAFE_STOP and cmd.faults_latched == Fault.HOST_STOP_REQUEST
+        loop.run(5.0, request_flags=RequestFlags.NONE)
+        assert loop.cmd.brake_bar >= CAL.hold_brake_bar and loop.plant.speed_mps == 0.0
+        loop.step(request_flags=RequestFlags.REARM)
         cmd = loop.step(request_flags=RequestFlags.NONE)
         assert cmd.state == EcuState.READY
         assert_passive(cmd)
