@@ -9,8 +9,10 @@ processes cost on top of the operating system's own wake-up jitter.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import os
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,9 @@ def bench_ecu(seconds: float, json_path: Path | None, report_dir: Path | None) -
     rt = apply_realtime(priority=70)
     print(f"baseline: empty 1 kHz loop for {BASELINE_S:.0f} s ({rt.summary()})", flush=True)
     baseline = baseline_loop()
+    with contextlib.suppress(OSError, AttributeError):
+        # Back to normal scheduling: the runner must not compete with the processes it measures.
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     scenario = dataclasses.replace(load_scenario("demo"), duration_s=seconds)
     with tempfile.TemporaryDirectory(prefix="bywire-bench-") as tmp:
         run_dir = report_dir or Path(tmp)
