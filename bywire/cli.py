@@ -47,7 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     sub.add_parser(
-        "ecu", help="the ECU firmware: run, flash, unlatch (see `bywire ecu --help`)", add_help=False
+        "ecu",
+        help="the ECU firmware: run, flash, calibrate, unlatch (see `bywire ecu --help`)",
+        add_help=False,
     )
 
     host = sub.add_parser("host", help="the host agent").add_subparsers(dest="host_command", required=True)

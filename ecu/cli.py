@@ -15,7 +15,9 @@ from pathlib import Path
 def build_parser() -> argparse.ArgumentParser:
     from bywire.ecu import app, boot, flash
 
-    parser = argparse.ArgumentParser(prog="bywire ecu", description="the ECU firmware: run and flash")
+    parser = argparse.ArgumentParser(
+        prog="bywire ecu", description="the ECU firmware: run it, flash it, and service it over the host link"
+    )
     sub = parser.add_subparsers(dest="ecu_command", required=True, metavar="COMMAND")
     run = sub.add_parser("run", help="run the ECU at 1 kHz (from a flashed store with --store)")
     app.add_run_arguments(run)
