@@ -6,6 +6,7 @@ never timing figures (the machine is shared and noisy; timing lives in `bywire b
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
@@ -22,26 +23,56 @@ def _bywire(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess[s
     )
 
 
+# A run during which the machine itself stalled (the VM's vCPU taken away for tens of ms, seen
+# here up to 86 ms) proves nothing about the ECU: its watchdogs rightly stop the car. Such a run is
+# repeated once, and only when the stall is visible in the run's own records.
+MACHINE_STALL_S = 0.040
+
+
+def _machine_stalled(report: Path, doc: dict) -> bool:
+    loop = doc.get("metrics", {}).get("ecu_loop") or {}
+    if loop.get("lateness_us", {}).get("max", 0.0) > MACHINE_STALL_S * 1e6:
+        return True
+    trace = report / "plant.csv"
+    if not trace.exists():
+        return False
+    times = [float(line.split(",", 1)[0]) for line in trace.read_text().splitlines()[1:] if line]
+    return any(b - a > MACHINE_STALL_S for a, b in itertools.pairwise(times))
+
+
+def _hil_run(
+    tmp_path: Path, scenario: str, *extra: str
+) -> tuple[subprocess.CompletedProcess[str], dict, Path]:
+    """`bywire hil run SCENARIO --mode hil` with its JSON and report; once more after a machine stall."""
+    for attempt in (1, 2):
+        report = tmp_path / f"report{attempt}"
+        out = report / "result.json"
+        proc = _bywire(
+            "hil",
+            "run",
+            scenario,
+            "--mode",
+            "hil",
+            "--json",
+            str(out),
+            "--report",
+            str(report),
+            "--quiet",
+            *extra,
+        )
+        doc = json.loads(out.read_text()) if out.exists() else {}
+        if proc.returncode == 0 or attempt == 2 or not _machine_stalled(report, doc):
+            return proc, doc, report
+        print(
+            f"{scenario}: the machine stalled for more than {MACHINE_STALL_S * 1000:.0f} ms; repeating once"
+        )
+    raise AssertionError("unreachable")
+
+
 def test_accel_steps_in_three_processes(tmp_path: Path) -> None:
-    report = tmp_path / "report"
-    out = tmp_path / "result.json"
     record = tmp_path / "frames.log"
-    proc = _bywire(
-        "hil",
-        "run",
-        "accel_steps",
-        "--mode",
-        "hil",
-        "--json",
-        str(out),
-        "--report",
-        str(report),
-        "--record",
-        str(record),
-        "--quiet",
-    )
+    proc, doc, report = _hil_run(tmp_path, "accel_steps", "--record", str(record))
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    doc = json.loads(out.read_text())
     assert doc["mode"] == "hil" and doc["verdict"] == "pass"
     assert doc["metrics"]["accel_rms_error_mps2"] <= 0.15
     assert all(code == 0 for code in doc["metrics"]["exit_codes"].values()), doc["metrics"]["exit_codes"]
@@ -54,12 +85,8 @@ def test_accel_steps_in_three_processes(tmp_path: Path) -> None:
 
 
 def test_host_frozen_with_sigstop_is_caught_by_the_ecu(tmp_path: Path) -> None:
-    out = tmp_path / "result.json"
-    proc = _bywire(
-        "hil", "run", "host_freeze", "--mode", "hil", "--json", str(out), "--host-link", "udp", "--quiet"
-    )
-    doc = json.loads(out.read_text())
-    assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc["checks"])
+    proc, doc, _ = _hil_run(tmp_path, "host_freeze", "--host-link", "udp")
+    assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc.get("checks"))
     m = doc["metrics"]
     assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True
     assert m["fault_detect_ms"] <= 200 and m["host_link"] == "udp"
@@ -69,24 +96,8 @@ def test_ecu_booted_from_a_flashed_store_drives_the_hil(tmp_path: Path) -> None:
     store = tmp_path / "store"
     flash = _bywire("ecu", "flash", "--store", str(store), "--firmware")
     assert flash.returncode == 0, flash.stdout + flash.stderr
-    out = tmp_path / "result.json"
-    report = tmp_path / "report"
-    proc = _bywire(
-        "hil",
-        "run",
-        "estop_disable",
-        "--mode",
-        "hil",
-        "--ecu-store",
-        str(store),
-        "--json",
-        str(out),
-        "--report",
-        str(report),
-        "--quiet",
-    )
-    doc = json.loads(out.read_text())
-    assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc["checks"])
+    proc, doc, report = _hil_run(tmp_path, "estop_disable", "--ecu-store", str(store))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc.get("checks"))
     assert doc["metrics"]["final_state"] == "DISABLED"
     boot_status = json.loads((store / "run" / "boot-status.json").read_text())
     assert boot_status["state"] in ("READY", "OFF")
@@ -161,3 +172,11 @@ def test_service_tool_calibrates_a_running_ecu_over_sdo_and_it_is_stored(tmp_pat
         ecu.terminate()
         ecu.wait(20)
         stop_bus_server(server, thread)
+
+
+def test_machine_stall_detection_reads_the_run_records(tmp_path: Path) -> None:
+    (tmp_path / "plant.csv").write_text("t_s,speed_mps\n0.00,1\n0.01,1\n0.02,1\n")
+    assert not _machine_stalled(tmp_path, {"metrics": {"ecu_loop": {"lateness_us": {"max": 900.0}}}})
+    assert _machine_stalled(tmp_path, {"metrics": {"ecu_loop": {"lateness_us": {"max": 86_000.0}}}})
+    (tmp_path / "plant.csv").write_text("t_s,speed_mps\n0.00,1\n0.01,1\n0.09,1\n")
+    assert _machine_stalled(tmp_path, {})
