@@ -50,6 +50,8 @@ from bywire.protocol.vehicle_can import (
 )
 
 VEHICLE_REPORTS = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+VEHICLE_TIMEOUT_CYCLES = 10.0
+VEHICLE_MAX_AGE_CYCLES = 5.0
 
 
 @dataclass(frozen=True)
@@ -85,8 +87,12 @@ class EcuApp:
         self._core_cal = calibration if calibration is not None else default_calibration()
         self.stats = stats or CycleStats()
         self.codec = VehicleCodec()
-        # Frames may wait up to 3 cycles (30 ms) in the socket when the ECU was late; older is stale.
-        self.rx = VehicleRx.for_node(self.codec, "ECU", max_age_cycles=3.0)
+        # A report is timed out after 10 of its cycles (100 ms for the 10 ms GW_* frames): on a shared
+        # 2-core machine the plant's frames jitter by tens of ms, and a 5-cycle timeout stopped the car
+        # for that alone. A frame that waited more than 5 cycles (the ECU itself was late) is stale.
+        self.rx = VehicleRx.for_node(
+            self.codec, "ECU", timeout_cycles=VEHICLE_TIMEOUT_CYCLES, max_age_cycles=VEHICLE_MAX_AGE_CYCLES
+        )
         self.tx = VehicleTx(self.codec)
         self._reports = tuple(self.rx.monitor(name) for name in VEHICLE_REPORTS)
         self._wheels, self._motion, self._driver, self._steer = self._reports

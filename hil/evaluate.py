@@ -24,6 +24,7 @@ BRAKE_ONSET_BAR = 1.0  # measured brake pressure that counts as "brakes applied"
 TRACK_DELAY_S = 1.0  # tracking is judged from 1 s after each step of the request (issue 2)
 SETTLE_BAND_MPS2 = 0.1
 STOP_STATES = (EcuState.PAUSED, EcuState.SAFE_STOP, EcuState.DISABLED, EcuState.MANUAL)
+STOP_STATE_NAMES = frozenset(s.name for s in STOP_STATES)
 
 
 def _first_index(mask: np.ndarray) -> int | None:
@@ -89,12 +90,17 @@ def fault_metrics(plant: dict[str, np.ndarray], scenario: Scenario) -> dict[str,
     after = t >= t_ref
     metrics: dict[str, Any] = {}
     state = plant["ecu_state"]
+    i_ref = _first_index(after)
+    # Detection only means something if the ECU was driving when the fault hit: a run that had
+    # already stopped for another reason must not pass a fault check by accident.
+    metrics["state_at_fault"] = None if i_ref is None else EcuState(int(state[i_ref])).name
     i_detect = _first_index(after & np.isin(state, [int(s) for s in STOP_STATES]))
+    if metrics["state_at_fault"] in STOP_STATE_NAMES:
+        i_detect = None
     metrics["fault_detect_ms"] = None if i_detect is None else round(float(t[i_detect] - t_ref) * 1000.0, 1)
     i_brake = _first_index(after & (plant["brake_actual_bar"] > BRAKE_ONSET_BAR))
     metrics["brake_onset_ms"] = None if i_brake is None else round(float(t[i_brake] - t_ref) * 1000.0, 1)
     i_stop = _first_index(after & (np.abs(plant["speed_mps"]) < STANDSTILL_MPS))
-    i_ref = _first_index(after)
     if i_stop is None or i_ref is None:
         metrics["stop_distance_m"] = None
         metrics["standstill_held"] = False

@@ -32,8 +32,10 @@ READY_TIMEOUT_S = 90.0  # four Python processes importing numpy/fmpy/canopen at 
 START_MARGIN_S = 0.5
 SHUTDOWN_GRACE_S = 10.0
 # SCHED_FIFO priorities on one 2-core machine: the ECU (80) above the buses it depends on (75) and
-# the host (72); the plant (70, its own default) comes last of the four: it is the simulator, and
-# when the machine is short it should step with a longer dt rather than starve the system under test.
+# the host (72). The plant, the busiest of all and only the simulator, runs at normal priority
+# (nice -10): with it at SCHED_FIFO the real-time tasks used up the kernel's RT budget
+# (sched_rt_runtime_us, 95 %) and were all throttled for tens of ms ("sched: RT throttling
+# activated"), tripping the ECU's watchdogs. As a normal task it steps with a longer dt instead.
 BUS_RT_PRIORITY = 75
 HOST_RT_PRIORITY = 72
 
