@@ -93,14 +93,18 @@ def test_host_frozen_with_sigstop_is_caught_by_the_ecu(tmp_path: Path) -> None:
 
 
 def test_ecu_booted_from_a_flashed_store_drives_the_hil(tmp_path: Path) -> None:
+    from bywire.ecu.calibration import default_calibration, dumps_calibration
+
     store = tmp_path / "store"
-    flash = _bywire("ecu", "flash", "--store", str(store), "--firmware")
+    calibration = tmp_path / "passat.json"
+    calibration.write_bytes(dumps_calibration(default_calibration()))
+    flash = _bywire("ecu", "flash", "--store", str(store), "--firmware", "--calibration", str(calibration))
     assert flash.returncode == 0, flash.stdout + flash.stderr
     proc, doc, report = _hil_run(tmp_path, "estop_disable", "--ecu-store", str(store))
     assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc.get("checks"))
-    assert doc["metrics"]["final_state"] == "DISABLED"
+    assert doc["metrics"]["final_state"] == "DISABLED" and doc["metrics"]["state_at_fault"] == "ENGAGED"
     boot_status = json.loads((store / "run" / "boot-status.json").read_text())
-    assert boot_status["state"] in ("READY", "OFF")
+    assert boot_status["state"] == "READY"
     ecu_log = (report / "ecu.log").read_text()
     assert "image" in ecu_log or "slot" in ecu_log, ecu_log
 
