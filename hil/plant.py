@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import can
 
-from bywire.hil.scenario import FaultEvent, Scenario, ramp_value, step_value
+from bywire.hil.scenario import FaultEvent, Scenario, ramp_value
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.protocol.timebase import rx_time_s
@@ -330,4 +330,4 @@ class Plant:
         )
 
 
-__all__ = ["Plant", "step_value"]
+__all__ = ["Plant"]
