@@ -81,6 +81,15 @@ class ObjectStore:
         self._topics: dict[str, _Topic] = {}
         self._lock = threading.Lock()
         self._published = threading.Condition(self._lock)
+        self._taps: list[Callable[[str, Any], None]] = []
+
+    def add_tap(self, tap: Callable[[str, Any], None]) -> None:
+        """Call `tap(topic, obj)` after every publication (recorders, live views, bridges).
+
+        Taps run in the publisher's thread, outside the store's lock, in publication order per
+        topic; a tap that raises is the tap's bug and propagates to the publisher.
+        """
+        self._taps.append(tap)
 
     # -- writing ------------------------------------------------------------------------------------
 
@@ -123,8 +132,11 @@ class ObjectStore:
             entry.times.append(t_s)
             entry.objects.append(obj)
             entry.published += 1
+            seq = entry.published
             self._published.notify_all()
-            return entry.published
+        for tap in self._taps:
+            tap(topic, obj)
+        return seq
 
     # -- reading ------------------------------------------------------------------------------------
 

@@ -1,0 +1,453 @@
+"""The scheduler and the supervisor: run every module on time, and notice when one stops doing its job.
+
+Scheduling (seed 000 section 3's modules on KogMo-RTDB, with deadlines made explicit): a periodic
+module is released at `start + k * period`, a triggered one on every new object of its trigger
+topic; each release runs on the module's worker and is measured (execution time, completion,
+deadline miss, overrun when the previous release is still running). In lockstep (SIL, replay) the
+scheduler releases the modules in dependency order and waits for each, so a run is deterministic;
+on wall time (HIL, the car) the releases run concurrently.
+
+Supervision — the watchdog AnnieWAY lacked (seed 000 section 12: a module hung after an exception,
+its process stayed alive, and a watchdog that only checked that processes existed never noticed).
+Ours judges each module from the outside, by data flow and timing alone:
+
+- exception: the step raised (the worker records it and stops; it never limps on);
+- crashed: the worker thread or process is gone;
+- hang / deadlock: a release has not completed after `hang_after_s`; the worker's CPU time tells
+  a spinning loop (hang) from a blocked one (deadlock);
+- slow: `slow_misses` deadline misses within the last `slow_window` releases;
+- stale: an output older than `max_output_age_s` although the module is not busy (it runs but
+  produces nothing).
+
+and acts on the module's `FailurePolicy`: restart it and its dependants in dependency order with
+exponential back-off (escalating when restarts keep failing), degrade (a speed limit on
+`/supervisor/limit`), or stop (a controlled stop request to the ECU on `/supervisor/stop`). Every
+detection and action is a `SupervisorEvent` on `/supervisor/events` and in the log. Detection runs
+on the runtime clock, so the bounds hold in simulated time (SIL) and wall time (HIL) alike; the
+execution time is always measured on the wall (it is CPU cost, not simulated time).
+
+The last line of defence stays in the ECU: if the host as a whole stops, the ECU's heartbeat
+watchdog stops the car (issue 2), whatever happened to this supervisor.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from bywire.clock import Clock
+from bywire.host.runtime.module import ModuleSpec, dependants, dependency_order
+from bywire.host.runtime.store import ObjectStore, Subscription
+from bywire.host.runtime.topics import (
+    MODULE_HEALTH,
+    SAFETY_LIMIT,
+    STOP_REQUEST,
+    SUPERVISOR_EVENTS,
+    ModuleHealth,
+    SafetyLimit,
+    StopRequest,
+    SupervisorEvent,
+)
+from bywire.host.runtime.worker import ModuleFactory, ThreadWorker, Worker
+
+log = logging.getLogger("bywire.supervisor")
+
+MIN_SPIN_SAMPLE_S = 0.005  # real time over which a hung worker's CPU use is judged
+SPIN_CPU_SHARE = 0.2  # a hung worker using more than this share of a CPU is spinning, not blocked
+START_TIMEOUT_S = 30.0  # wall time a worker may take to start (a process worker imports numpy...)
+
+
+class Injector(Protocol):
+    """Fault injection for tests and scenarios (see `hil.module_faults`)."""
+
+    def before_step(self, module: str, ctx: Any) -> None: ...
+
+    def tick(self, runtime: Runtime, now_s: float) -> None: ...
+
+
+WorkerMaker = Callable[["Entry", ObjectStore, Clock, "Injector | None"], Worker]
+
+
+@dataclass
+class Entry:
+    """The runtime's record of one module: its declaration, its current worker and its history."""
+
+    spec: ModuleSpec
+    factory: ModuleFactory
+    params: Mapping[str, Any]
+    worker: Worker | None = None
+    generation: int = 0
+    state: str = "starting"
+    release_k: int = 0
+    pending: bool = False
+    trigger_sub: Subscription[Any] | None = None
+    restart_at_s: float | None = None
+    restart_times: deque[float] = field(default_factory=deque)
+    restarts: int = 0
+    started_s: float = 0.0
+    busy_mark: tuple[float, float | None, float] | None = None  # (wall, cpu, busy_since) when first late
+    recovering_from: float | None = None  # onset of the failure a restart is recovering from
+    reported: set[str] = field(default_factory=set)
+
+
+def thread_worker(entry: Entry, store: ObjectStore, clock: Clock, injector: Injector | None) -> Worker:
+    inject = None
+    if injector is not None:
+        name = entry.spec.name
+
+        def inject(ctx: Any) -> None:
+            injector.before_step(name, ctx)
+
+    return ThreadWorker(entry.spec, entry.factory, store, clock, entry.params, entry.generation, inject)
+
+
+class Runtime:
+    """Modules on one store and one clock; call `tick(now_s)` (lockstep) or `run_wall(...)`."""
+
+    def __init__(
+        self,
+        store: ObjectStore,
+        clock: Clock,
+        *,
+        lockstep: bool = False,
+        lockstep_timeout_s: float = 1.0,
+        injector: Injector | None = None,
+        health_period_s: float = 0.1,
+        process_worker: WorkerMaker | None = None,
+    ) -> None:
+        self.store = store
+        self.clock = clock
+        self.lockstep = lockstep
+        self.lockstep_timeout_s = lockstep_timeout_s
+        self.injector = injector
+        self.health_period_s = health_period_s
+        self._process_worker = process_worker
+        self.entries: dict[str, Entry] = {}
+        self._order: list[Entry] = []
+        self.events: list[SupervisorEvent] = []
+        self.start_s: float | None = None
+        self._next_health_s = 0.0
+        self.limit: SafetyLimit | None = None
+        self.stop_requested: StopRequest | None = None
+        for topic, kind in (
+            (SUPERVISOR_EVENTS, SupervisorEvent),
+            (SAFETY_LIMIT, SafetyLimit),
+            (STOP_REQUEST, StopRequest),
+            (MODULE_HEALTH, ModuleHealth),
+        ):
+            store.declare(topic, kind)
+
+    # -- set-up --------------------------------------------------------------------------------------
+
+    def add_module(self, spec: ModuleSpec, factory: ModuleFactory, params: Mapping[str, Any] | None = None) -> None:
+        if self.start_s is not None:
+            raise RuntimeError("modules are added before start()")
+        if spec.name in self.entries:
+            raise ValueError(f"two modules named {spec.name!r}")
+        self.entries[spec.name] = Entry(spec, factory, dict(params or {}))
+
+    @property
+    def specs(self) -> list[ModuleSpec]:
+        return [e.spec for e in self.entries.values()]
+
+    def start(self, now_s: float) -> None:
+        """Start every module's worker (in dependency order) and wait until each is ready."""
+        self._order = [self.entries[s.name] for s in dependency_order(self.specs)]
+        self.start_s = now_s
+        self._next_health_s = now_s
+        for e in self._order:
+            self._spawn(e, now_s)
+
+    def _spawn(self, e: Entry, now_s: float) -> None:
+        e.generation += 1
+        if e.spec.isolation == "process":
+            if self._process_worker is None:
+                raise RuntimeError(f"module {e.spec.name} wants a process worker, and none is configured")
+            e.worker = self._process_worker(e, self.store, self.clock, self.injector)
+        else:
+            e.worker = thread_worker(e, self.store, self.clock, self.injector)
+        # A restarted module starts on the period grid, not at a time of its own.
+        if e.spec.period_s is not None:
+            e.release_k = max(e.release_k, math.ceil((now_s - (self.start_s or 0.0)) / e.spec.period_s - 1e-9))
+        e.trigger_sub = self.store.subscribe(e.spec.trigger) if e.spec.trigger else None
+        e.pending = False
+        e.started_s = now_s
+        e.busy_mark = None
+        e.restart_at_s = None
+        e.state = "starting"
+        e.reported.clear()
+        if self.lockstep or e.spec.isolation == "process":
+            wait = getattr(e.worker, "wait_started", None)
+            if wait is not None:
+                wait(START_TIMEOUT_S)
+
+    def close(self) -> None:
+        for e in reversed(self._order):
+            if e.worker is not None:
+                if e.worker.busy_since_s is not None:
+                    e.worker.abandon()
+                else:
+                    e.worker.retire()
+
+    # -- the loop --------------------------------------------------------------------------------------
+
+    def tick(self, now_s: float) -> None:
+        """Supervise, then release what is due (in lockstep: one after the other, waiting for each)."""
+        if self.injector is not None:
+            self.injector.tick(self, now_s)
+        self.supervise(now_s)
+        for e in self._order:
+            w = e.worker
+            if w is None or e.state in ("restarting", "stopped", "failed"):
+                continue
+            if e.state == "starting":
+                if not w.ready():
+                    continue
+                e.state = "running"
+            if not self._due(e, now_s):
+                continue
+            if w.release(now_s) and self.lockstep:
+                w.wait_done(self.lockstep_timeout_s)
+            e.pending = False
+        if now_s >= self._next_health_s:
+            self._publish_health(now_s)
+            self._next_health_s += self.health_period_s * max(
+                1, math.ceil((now_s - self._next_health_s) / self.health_period_s + 1e-9)
+            )
+
+    def _due(self, e: Entry, now_s: float) -> bool:
+        if e.trigger_sub is not None:
+            for _ in e.trigger_sub:
+                e.pending = True
+            return e.pending and e.worker is not None and e.worker.busy_since_s is None
+        assert e.spec.period_s is not None and self.start_s is not None
+        due_s = self.start_s + e.release_k * e.spec.period_s
+        if now_s + 1e-9 < due_s:
+            return False
+        # Skip releases that are already past (a stall): they are counted as overruns, not queued.
+        behind = math.floor((now_s - due_s) / e.spec.period_s + 1e-9)
+        if behind > 0 and e.worker is not None:
+            e.worker.stats.skipped += behind
+        e.release_k += behind + 1
+        return True
+
+    def run_wall(self, until_s: float, stop: Callable[[], bool] = lambda: False, tick_s: float = 0.001) -> None:
+        """Tick on the clock every `tick_s` until `until_s` (HIL and the car)."""
+        next_s = self.clock.now()
+        while not stop():
+            now = self.clock.now()
+            if now >= until_s:
+                break
+            self.tick(now)
+            next_s += tick_s
+            if next_s < now:
+                next_s = now + tick_s
+            self.clock.sleep_until(next_s)
+
+    # -- supervision -------------------------------------------------------------------------------
+
+    def supervise(self, now_s: float) -> None:
+        for e in self._order:
+            if e.state == "restarting":
+                if e.restart_at_s is not None and now_s >= e.restart_at_s:
+                    self._spawn(e, now_s)
+                continue
+            w = e.worker
+            if w is None or e.state in ("stopped", "failed"):
+                continue
+            found = self._detect(e, w, now_s)
+            if found is not None:
+                self._handle(e, now_s, *found)
+            elif e.recovering_from is not None and w.stats.completed > 0 and not w.stats.missed[-1]:
+                self._event(e, now_s, "recovered", "first release of the new instance met its deadline",
+                            "none", e.recovering_from)
+                e.recovering_from = None
+
+    def _detect(self, e: Entry, w: Worker, now_s: float) -> tuple[str, str, float] | None:
+        spec = e.spec
+        if w.failure is not None:
+            return w.failure.cause, w.failure.detail, w.failure.t_s
+        if not w.ready():
+            if not w.alive():
+                return "crashed", "worker ended before it was ready", e.started_s
+            return None
+        if not w.alive():
+            last = w.stats.last_done_s if w.stats.last_done_s is not None else e.started_s
+            return "crashed", "worker is gone without an exception (killed?)", last
+        busy = w.busy_since_s
+        if busy is not None:
+            late = now_s - busy
+            if late > spec.deadline_s and (e.busy_mark is None or e.busy_mark[2] != busy):
+                e.busy_mark = (time.perf_counter(), w.cpu_time_s(), busy)
+            if late > spec.hang_after_s:
+                return self._classify_hang(e, w, busy, late)
+            return None
+        if "slow" not in e.reported:
+            recent = list(w.stats.missed)[-spec.policy.slow_window :]
+            if sum(recent) >= spec.policy.slow_misses:
+                n = spec.policy.slow_misses
+                onset = w.stats.miss_times_s[-n]
+                exec_ms = 1e3 * np.array(w.stats.exec_s)[-len(recent) :]
+                return (
+                    "slow",
+                    f"{sum(recent)} of the last {len(recent)} releases missed the "
+                    f"{spec.deadline_s * 1e3:.0f} ms deadline (exec max {exec_ms.max():.1f} ms)",
+                    onset,
+                )
+        max_age = spec.max_output_age_s
+        if max_age is not None and "stale" not in e.reported and e.state != "starting":
+            for topic in spec.outputs:
+                obj = self.store.latest(topic)
+                t_last = obj.t_s if obj is not None and obj.t_s >= e.started_s else e.started_s
+                if now_s - t_last > max_age:
+                    return "stale", f"no new {topic} for {(now_s - t_last) * 1e3:.0f} ms", t_last
+        return None
+
+    def _classify_hang(self, e: Entry, w: Worker, busy_s: float, late_s: float) -> tuple[str, str, float]:
+        if e.busy_mark is None or time.perf_counter() - e.busy_mark[0] < MIN_SPIN_SAMPLE_S:
+            # Lockstep ticks can pass faster than the CPU share can be judged: sample once more,
+            # over a little real time (this happens once per hang, not per tick).
+            e.busy_mark = (time.perf_counter(), w.cpu_time_s(), busy_s)
+            time.sleep(MIN_SPIN_SAMPLE_S)
+        cpu_now = w.cpu_time_s()
+        wall_now = time.perf_counter()
+        share = None
+        if e.busy_mark is not None and e.busy_mark[1] is not None and cpu_now is not None:
+            wall_span = wall_now - e.busy_mark[0]
+            if wall_span > 0:
+                share = (cpu_now - e.busy_mark[1]) / wall_span
+        where = f"release at {busy_s - (self.start_s or 0.0):.3f} s not done after {late_s * 1e3:.0f} ms"
+        if share is None:
+            return "hang", f"{where} (CPU use unknown)", busy_s
+        if share > SPIN_CPU_SHARE:
+            return "hang", f"{where}, spinning ({share:.0%} of a CPU)", busy_s
+        return "deadlock", f"{where}, blocked ({share:.0%} of a CPU): deadlock or endless wait", busy_s
+
+    def _handle(self, e: Entry, now_s: float, cause: str, detail: str, onset_s: float) -> None:
+        policy = e.spec.policy
+        action = policy.action
+        if action == "restart":
+            while e.restart_times and now_s - e.restart_times[0] > policy.restart_window_s:
+                e.restart_times.popleft()
+            if len(e.restart_times) >= policy.max_restarts:
+                detail += f"; {len(e.restart_times)} restarts within {policy.restart_window_s:.0f} s"
+                action = policy.escalate_to
+        if e.state == "degraded" and action == "degrade":
+            action = "restart"  # already degraded: a dead module must still come back
+        self._event(e, now_s, cause, detail, action, onset_s)
+        e.reported.add(cause)
+        if action == "degrade":
+            self._degrade(e, now_s, f"{e.spec.name}: {cause}")
+            if cause in ("slow", "stale"):
+                e.state = "degraded"  # it still runs, only late: keep it, at a safe speed
+                return
+            action = "restart"
+        if action == "stop":
+            self._request_stop(now_s, f"{e.spec.name}: {cause}")
+            self._take_down(e)
+            e.state = "stopped"
+            return
+        self._schedule_restart(e, now_s, onset_s)
+        for name in dependants(self.specs, e.spec.name):
+            d = self.entries[name]
+            if d.state in ("restarting", "stopped", "failed"):
+                continue
+            self._event(d, now_s, "dependant", f"consumes outputs of {e.spec.name}", "restart", now_s)
+            self._schedule_restart(d, now_s, now_s, at_s=e.restart_at_s)
+
+    def _schedule_restart(self, e: Entry, now_s: float, onset_s: float, at_s: float | None = None) -> None:
+        policy = e.spec.policy
+        delay = min(policy.backoff_max_s, policy.backoff_s * 2.0 ** len(e.restart_times)) if policy.backoff_s else 0.0
+        self._take_down(e)
+        e.restart_times.append(now_s)
+        e.restarts += 1
+        e.recovering_from = onset_s
+        e.state = "restarting"
+        e.restart_at_s = now_s + delay if at_s is None else at_s
+        if e.restart_at_s <= now_s and at_s is None:
+            self._spawn(e, now_s)
+
+    def _take_down(self, e: Entry) -> None:
+        w = e.worker
+        if w is None:
+            return
+        if w.busy_since_s is not None:
+            w.abandon()
+        else:
+            w.retire()
+
+    def _degrade(self, e: Entry, now_s: float, reason: str) -> None:
+        limit = e.spec.policy.degrade_speed_mps
+        if self.limit is None or limit < self.limit.max_speed_mps:
+            self.limit = SafetyLimit(now_s, limit, reason)
+            self.store.publish(SAFETY_LIMIT, self.limit)
+
+    def _request_stop(self, now_s: float, reason: str) -> None:
+        if self.stop_requested is None:
+            self.stop_requested = StopRequest(now_s, reason)
+            self.store.publish(STOP_REQUEST, self.stop_requested)
+
+    def _event(self, e: Entry, now_s: float, cause: str, detail: str, action: str, onset_s: float) -> None:
+        event = SupervisorEvent(
+            t_s=now_s,
+            module=e.spec.name,
+            generation=e.generation,
+            cause=cause,
+            detail=detail,
+            action=action,
+            onset_s=onset_s,
+            detect_ms=round((now_s - onset_s) * 1e3, 3),
+        )
+        self.events.append(event)
+        self.store.publish(SUPERVISOR_EVENTS, event)
+        rel = now_s - (self.start_s or 0.0)
+        level = logging.INFO if cause in ("recovered", "dependant") else logging.WARNING
+        log.log(level, "t=%.3f s %s#%d %s (%s) -> %s, detected after %.1f ms",
+                rel, e.spec.name, e.generation, cause, detail, action, event.detect_ms)
+
+    # -- health ------------------------------------------------------------------------------------
+
+    def module_health(self, e: Entry, now_s: float) -> ModuleHealth:
+        w = e.worker
+        exec_ms = 1e3 * np.array(w.stats.exec_s) if w is not None and w.stats.exec_s else np.zeros(1)
+        ages = [now_s - o.t_s for t in e.spec.outputs if (o := self.store.latest(t)) is not None]
+        s = w.stats if w is not None else None
+        return ModuleHealth(
+            t_s=now_s,
+            module=e.spec.name,
+            generation=e.generation,
+            state=e.state,
+            releases=s.releases if s else 0,
+            completed=s.completed if s else 0,
+            misses=s.misses if s else 0,
+            skipped=s.skipped if s else 0,
+            restarts=e.restarts,
+            exec_ms_p50=round(float(np.median(exec_ms)), 4),
+            exec_ms_p99=round(float(np.percentile(exec_ms, 99)), 4),
+            exec_ms_max=round(float(exec_ms.max()), 4),
+            output_age_ms=round(max(ages) * 1e3, 3) if ages else -1.0,
+        )
+
+    def _publish_health(self, now_s: float) -> None:
+        for e in self._order:
+            self.store.publish(MODULE_HEALTH, self.module_health(e, now_s))
+
+    def summary(self, now_s: float | None = None) -> dict[str, Any]:
+        """Per-module timing and state, and the supervisor's events, for the run's JSON."""
+        now = self.clock.now() if now_s is None else now_s
+        return {
+            "modules": {
+                e.spec.name: {
+                    k: v for k, v in vars(self.module_health(e, now)).items() if k not in ("t_s", "module")
+                }
+                for e in self._order
+            },
+            "events": [vars(ev) | {"t_rel_s": round(ev.t_s - (self.start_s or 0.0), 4)} for ev in self.events],
+        }

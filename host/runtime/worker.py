@@ -1,0 +1,253 @@
+"""Workers: where one module instance runs, and what the supervisor can observe of it from outside.
+
+A worker runs one instance of one module: in a thread of the host process (the default) or in a
+process of its own (`ProcessWorker`, in `process_worker`). The scheduler `release`s it; the worker
+runs `step`, measures the execution time and records completions, deadline misses and the
+exception that ended it, if any. Everything the supervisor needs is readable without the worker's
+cooperation — a hung module cannot be asked whether it is hung (seed 000 section 12: the module
+that ended AnnieWAY's final was alive and silent):
+
+- `busy_since_s`: the release in progress, on the runtime clock (a hang is a release that never ends);
+- `cpu_time_s()`: the worker's own CPU time from /proc, which tells a spinning loop (CPU advances)
+  from a deadlock (blocked, CPU still);
+- `failure`: the exception or death that ended it.
+
+A thread cannot be killed. A hung thread is `abandon`ed: its context is fenced (nothing it still
+publishes reaches the store), and an asynchronous `ModuleCancelled` is raised in it, which ends a
+pure-Python busy loop at its next bytecode; a thread blocked in C (a deadlocked lock) stays blocked,
+costs no CPU, and is left behind as a daemon. Modules that may hang in native code belong in a
+process worker, which can be killed.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from bywire.clock import Clock
+from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec
+from bywire.host.runtime.store import ObjectStore
+
+HISTORY = 1000  # releases kept for execution-time statistics
+
+
+class ModuleCancelled(BaseException):
+    """Raised asynchronously in an abandoned module thread (a BaseException so `except Exception` in
+    the module cannot swallow it)."""
+
+
+@dataclass(frozen=True)
+class Failure:
+    cause: str  # "exception" | "crashed"
+    detail: str
+    t_s: float  # when it happened, on the runtime clock
+
+
+@dataclass
+class ReleaseStats:
+    """Counters and recent timings of one worker (one module instance)."""
+
+    releases: int = 0
+    completed: int = 0
+    misses: int = 0
+    skipped: int = 0  # releases due while the previous one was still running (overruns)
+    last_release_s: float | None = None
+    last_done_s: float | None = None
+
+    def __post_init__(self) -> None:
+        self.exec_s: deque[float] = deque(maxlen=HISTORY)
+        self.missed: deque[bool] = deque(maxlen=HISTORY)
+        self.miss_times_s: deque[float] = deque(maxlen=HISTORY)
+
+
+class Worker(Protocol):
+    spec: ModuleSpec
+    generation: int
+    stats: ReleaseStats
+    failure: Failure | None
+    busy_since_s: float | None
+
+    def release(self, now_s: float) -> bool: ...
+
+    def wait_done(self, timeout_s: float) -> bool: ...
+
+    def alive(self) -> bool: ...
+
+    def cpu_time_s(self) -> float | None: ...
+
+    def ready(self) -> bool: ...
+
+    def abandon(self) -> None: ...
+
+    def retire(self) -> None: ...
+
+
+ModuleFactory = Callable[[], Module]
+
+
+def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
+    """Time a thread has spent on a CPU, in seconds, from /proc/PID/task/TID/schedstat (nanosecond
+    resolution, unlike the 10 ms ticks of /proc/.../stat); None where it cannot be read."""
+    try:
+        return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+class ThreadWorker:
+    """One module instance on a daemon thread of the host process."""
+
+    def __init__(
+        self,
+        spec: ModuleSpec,
+        factory: ModuleFactory,
+        store: ObjectStore,
+        clock: Clock,
+        params: Mapping[str, Any],
+        generation: int,
+        inject: Callable[[ModuleContext], None] | None = None,
+    ) -> None:
+        self.spec = spec
+        self.generation = generation
+        self.stats = ReleaseStats()
+        self.failure: Failure | None = None
+        self.busy_since_s: float | None = None
+        self.ctx = ModuleContext(spec, store, params, generation)
+        self._factory = factory
+        self._clock = clock
+        self._inject = inject
+        self._go = threading.Event()
+        self._idle = threading.Event()
+        self._started = threading.Event()
+        self._retiring = False
+        self._native_id: int | None = None
+        self.thread = threading.Thread(
+            target=self._run, name=f"module-{spec.name}#{generation}", daemon=True
+        )
+        self.thread.start()
+
+    # -- scheduler side ------------------------------------------------------------------------------
+
+    def ready(self) -> bool:
+        return self._started.is_set()
+
+    def release(self, now_s: float) -> bool:
+        """Start a step at `now_s`; False (and an overrun counted) if the previous one still runs."""
+        if self.failure is not None or not self._started.is_set():
+            return False
+        if self.busy_since_s is not None:
+            self.stats.skipped += 1
+            return False
+        self.busy_since_s = now_s
+        self.ctx.now_s = now_s
+        self.stats.releases += 1
+        self.stats.last_release_s = now_s
+        self._idle.clear()
+        self._go.set()
+        return True
+
+    def wait_done(self, timeout_s: float) -> bool:
+        return self._idle.wait(timeout_s)
+
+    def wait_started(self, timeout_s: float) -> bool:
+        return self._started.wait(timeout_s)
+
+    def alive(self) -> bool:
+        return self.thread.is_alive()
+
+    def cpu_time_s(self) -> float | None:
+        return None if self._native_id is None else task_cpu_time_s("self", self._native_id)
+
+    def abandon(self) -> None:
+        """Give up on a hung instance: fence its outputs and try to cancel it (see the module doc)."""
+        self.ctx.fenced = True
+        self._retiring = True
+        ident = self.thread.ident
+        if ident is not None and self.thread.is_alive():
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), ctypes.py_object(ModuleCancelled))
+        self._go.set()
+
+    def retire(self) -> None:
+        """Stop a healthy (or failed) instance at its next release point."""
+        self.ctx.fenced = True
+        self._retiring = True
+        self._go.set()
+        if self.thread is not threading.current_thread():
+            self.thread.join(timeout=max(0.1, 2 * self.spec.deadline_s))
+
+    # -- worker thread ---------------------------------------------------------------------------
+
+    def _fail(self, cause: str, exc: BaseException, where: str) -> None:
+        frames = traceback.extract_tb(exc.__traceback__)
+        at = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+        self.failure = Failure(cause, f"{where}: {type(exc).__name__}: {exc}{at}", self._clock.now())
+
+    def _run(self) -> None:
+        self._native_id = threading.get_native_id()
+        try:
+            module = self._factory()
+            module.start(self.ctx)
+        except ModuleCancelled:
+            return
+        except BaseException as exc:
+            self._fail("exception", exc, "start")
+            self._started.set()
+            self._idle.set()
+            return
+        self._started.set()
+        self._idle.set()
+        try:
+            while True:
+                self._go.wait()
+                self._go.clear()
+                if self._retiring:
+                    break
+                wall0 = time.perf_counter()
+                try:
+                    if self._inject is not None:
+                        self._inject(self.ctx)
+                    module.step(self.ctx)
+                except ModuleCancelled:
+                    return
+                except BaseException as exc:
+                    self._fail("exception", exc, "step")
+                    self.busy_since_s = None
+                    self._idle.set()
+                    return
+                self._complete(time.perf_counter() - wall0)
+        except ModuleCancelled:
+            return
+        try:
+            module.close()
+        except Exception:
+            pass
+
+    def _complete(self, exec_s: float) -> None:
+        complete_on_record(self.spec, self.stats, self.busy_since_s, self._clock.now(), exec_s)
+        self.busy_since_s = None
+        self._idle.set()
+
+
+def complete_on_record(
+    spec: ModuleSpec, stats: ReleaseStats, release_s: float | None, done_s: float, exec_s: float
+) -> None:
+    """Book one completed release: a miss when the wall execution time or the release-to-done time
+    on the runtime clock exceeds the deadline (the first catches slow code in lockstep SIL, where
+    simulated time stands still during a step; the second catches scheduling delays in HIL)."""
+    response_s = exec_s if release_s is None else max(exec_s, done_s - release_s)
+    missed = response_s > spec.deadline_s or not math.isfinite(response_s)
+    stats.completed += 1
+    stats.last_done_s = done_s
+    stats.exec_s.append(exec_s)
+    stats.missed.append(missed)
+    if missed:
+        stats.misses += 1
+        stats.miss_times_s.append(done_s)

@@ -1,0 +1,203 @@
+"""Scheduler and supervisor on toy modules: every failure kind is detected within its bound and handled.
+
+Lockstep on a simulated clock, as in SIL: detection times are simulated milliseconds, so the
+bounds are exact and these tests do not depend on how busy the machine is (only the hang/deadlock
+tell-apart reads real CPU time, over the real wall time the lockstep wait gives it).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import pytest
+
+from bywire.clock import SimClock
+from bywire.host.runtime.module import (
+    FailurePolicy,
+    Module,
+    ModuleContext,
+    ModuleSpec,
+    dependants,
+    dependency_order,
+)
+from bywire.host.runtime.runtime import Runtime
+from bywire.host.runtime.store import ObjectStore, StoreError
+from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
+
+
+@dataclass(frozen=True)
+class Tick:
+    t_s: float
+    n: int
+
+
+class Counter(Module):
+    """Publishes a count every release; misbehaves on command."""
+
+    def __init__(self, out: str, fail: dict[str, float] | None = None, src: str | None = None) -> None:
+        self.n = 0
+        self.out = out
+        self.src = src
+        self.fail = fail or {}
+
+    def step(self, ctx: ModuleContext) -> None:
+        t = ctx.now_s
+        if "raise_at" in self.fail and t >= self.fail["raise_at"]:
+            self.fail.pop("raise_at")  # transient: the restarted instance gets a fresh dict anyway
+            raise RuntimeError("injected")
+        if "spin_at" in self.fail and t >= self.fail["spin_at"]:
+            self.fail.pop("spin_at")
+            while True:
+                pass
+        if "block_at" in self.fail and t >= self.fail["block_at"]:
+            self.fail.pop("block_at")
+            lock = threading.Lock()
+            lock.acquire()
+            lock.acquire()
+        if "slow_from" in self.fail and t >= self.fail["slow_from"]:
+            time.sleep(self.fail["slow_s"])
+        if "mute_from" in self.fail and t >= self.fail["mute_from"]:
+            return
+        if self.src is not None:
+            ctx.new(self.src)
+        self.n += 1
+        ctx.publish(self.out, Tick(t, self.n))
+
+
+def make_runtime(fail_a: dict[str, float], policy: FailurePolicy | None = None) -> tuple[Runtime, ObjectStore]:
+    store = ObjectStore()
+    rt = Runtime(store, SimClock(), lockstep=True, lockstep_timeout_s=0.05)
+    pol = policy or FailurePolicy()
+    spec_a = ModuleSpec("a", outputs=("/a",), period_s=0.02, deadline_s=0.01, policy=pol)
+    spec_b = ModuleSpec("b", inputs=("/a",), outputs=("/b",), trigger="/a", deadline_s=0.01)
+    # A fresh fault dict per instance would make every fault transient; share one so a consumed
+    # one-shot fault stays consumed across restarts, like a real transient event.
+    rt.add_module(spec_a, lambda: Counter("/a", fail_a))
+    rt.add_module(spec_b, lambda: Counter("/b", src="/a"))
+    return rt, store
+
+
+def run(rt: Runtime, seconds: float) -> None:
+    rt.start(0.0)
+    try:
+        for k in range(round(seconds / 0.001) + 1):
+            rt.clock.advance_to(k * 0.001)  # type: ignore[attr-defined]
+            rt.tick(k * 0.001)
+    finally:
+        rt.close()
+
+
+def causes(rt: Runtime) -> list[tuple[str, str, str]]:
+    return [(e.module, e.cause, e.action) for e in rt.events]
+
+
+def test_healthy_modules_run_on_time_and_in_dependency_order() -> None:
+    rt, store = make_runtime({})
+    run(rt, 1.0)
+    assert rt.events == []
+    a = store.history("/a")
+    assert [o.t_s for o in a[:3]] == pytest.approx([0.0, 0.02, 0.04])
+    assert len(a) == 51
+    # b is triggered by every /a and, in lockstep, runs in the same tick
+    assert [o.t_s for o in store.history("/b")] == [o.t_s for o in a]
+    health = rt.summary(1.0)["modules"]["a"]
+    assert health["completed"] == 51 and health["misses"] == 0 and health["state"] == "running"
+
+
+def test_exception_is_detected_at_once_and_the_module_restarted_with_its_dependants() -> None:
+    rt, store = make_runtime({"raise_at": 0.5})
+    run(rt, 1.0)
+    first = rt.events[0]
+    assert (first.module, first.cause, first.action) == ("a", "exception", "restart")
+    assert "RuntimeError: injected" in first.detail
+    assert first.detect_ms <= 1.0
+    assert ("b", "dependant", "restart") in causes(rt)
+    assert ("a", "recovered", "none") in causes(rt)
+    # the restarted instance starts counting again, on the period grid
+    after = [o for o in store.history("/a") if o.t_s > 0.5]
+    assert after[0].n == 1 and after[0].t_s == pytest.approx(0.52)
+
+
+@pytest.mark.parametrize(("fault", "cause"), [("spin_at", "hang"), ("block_at", "deadlock")])
+def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(fault: str, cause: str) -> None:
+    policy = FailurePolicy(hang_after_s=0.06)
+    rt, store = make_runtime({fault: 0.3}, policy)
+    run(rt, 0.6)
+    ev = rt.events[0]
+    assert (ev.module, ev.cause, ev.action) == ("a", cause, "restart"), ev.detail
+    assert 60.0 < ev.detect_ms <= 62.0
+    # the replacement runs; the zombie's outputs (if any) are fenced
+    assert store.latest("/a").t_s == pytest.approx(0.6)
+
+
+def test_slow_module_is_detected_after_the_configured_misses_and_degraded() -> None:
+    policy = FailurePolicy(action="degrade", slow_misses=3, slow_window=5, degrade_speed_mps=4.0)
+    rt, store = make_runtime({"slow_from": 0.2, "slow_s": 0.015}, policy)
+    run(rt, 0.4)
+    ev = rt.events[0]
+    assert (ev.module, ev.cause, ev.action) == ("a", "slow", "degrade")
+    assert ev.t_s == pytest.approx(0.241)  # third miss (releases 0.20, 0.22, 0.24), seen the next tick
+    limit = store.latest(SAFETY_LIMIT)
+    assert limit.max_speed_mps == 4.0 and "a: slow" in limit.reason
+    assert rt.summary(0.4)["modules"]["a"]["state"] == "degraded"
+    assert len(rt.events) == 1  # a degraded module is not reported again for the same cause
+
+
+def test_module_that_runs_but_publishes_nothing_is_stale() -> None:
+    rt, store = make_runtime({"mute_from": 0.5})
+    run(rt, 0.7)
+    ev = rt.events[0]
+    assert (ev.module, ev.cause) == ("a", "stale")
+    assert ev.onset_s == pytest.approx(0.48)
+    assert 60.0 <= ev.detect_ms <= 62.0  # 3 periods
+
+
+def test_restarts_escalate_to_a_controlled_stop() -> None:
+    policy = FailurePolicy(max_restarts=2, escalate_to="stop", backoff_s=0.01)
+    fail = {"slow_from": 0.1, "slow_s": 0.012}  # persistent: every instance is slow
+    rt, store = make_runtime(fail, policy)
+    run(rt, 2.0)
+    actions = [e.action for e in rt.events if e.module == "a" and e.cause == "slow"]
+    assert actions == ["restart", "restart", "stop"]
+    stop = store.latest(STOP_REQUEST)
+    assert stop is not None and "a: slow" in stop.reason
+    restarts = [e.t_s for e in rt.events if e.module == "a" and e.cause == "slow"]
+    assert restarts[1] - restarts[0] >= 0.01 + 2 * 0.02 - 1e-9  # back-off, then three slow releases
+
+
+def test_undeclared_topics_are_refused() -> None:
+    store = ObjectStore()
+    spec = ModuleSpec("m", inputs=("/x",), outputs=("/y",), period_s=0.1)
+    from bywire.host.runtime.module import ModuleContext as Ctx
+
+    ctx = Ctx(spec, store, {}, 1)
+    with pytest.raises(StoreError, match="m publishes '/z'"):
+        ctx.publish("/z", Tick(0.0, 1))
+    with pytest.raises(StoreError, match="m reads '/q'"):
+        ctx.latest("/q")
+
+
+def test_dependency_order_and_dependants_with_a_feedback_loop() -> None:
+    link = ModuleSpec("link", inputs=("/req",), outputs=("/status",), period_s=0.02)
+    odo = ModuleSpec("odo", inputs=("/status",), outputs=("/odo",), period_s=0.02)
+    ctl = ModuleSpec("ctl", inputs=("/odo", "/lead"), outputs=("/req",), period_s=0.02)
+    track = ModuleSpec("track", inputs=("/radar",), outputs=("/lead",), period_s=0.02)
+    log = ModuleSpec("log", inputs=("/req",), outputs=("/log",), period_s=0.02)
+    specs = [link, odo, ctl, track, log]
+    order = [s.name for s in dependency_order(specs)]
+    assert order.index("track") < order.index("ctl") < order.index("log")
+    assert dependants(specs, "track") == ["ctl", "log"]
+    assert dependants(specs, "ctl") == ["log"]  # link and odo feed back into ctl: not restarted
+    with pytest.raises(ValueError, match="output of both"):
+        dependency_order([link, ModuleSpec("x", outputs=("/status",), period_s=1.0)])
+
+
+def test_bad_declarations_are_refused() -> None:
+    with pytest.raises(ValueError, match="exactly one of period_s and trigger"):
+        ModuleSpec("m")
+    with pytest.raises(ValueError, match="trigger '/t' must be one of its inputs"):
+        ModuleSpec("m", trigger="/t")
+    with pytest.raises(ValueError, match="escalate_to cannot be restart"):
+        FailurePolicy(escalate_to="restart")
