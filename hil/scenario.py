@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.schema import Reader, SchemaError
 
 SCENARIO_SUFFIXES = (".yaml", ".yml", ".toml")
 
@@ -36,122 +37,24 @@ FAULT_KINDS = (
     "host_stop",  # the host asks the ECU for a controlled stop (request flag STOP)
     "unlatch",  # the operator's manual unlatch of a DISABLE (SDO write)
     "rearm",  # the host sends a REARM pulse
+    # Host runtime faults (issue 3), injected into one module of the host: module = NAME
+    "module_exception",  # the module's next step raises
+    "module_hang",  # the module's next step never returns (an endless loop)
+    "module_deadlock",  # the module's next step blocks forever on a lock
+    "module_slow",  # every step takes slow_ms longer, for duration_s (0: to the end)
+    "module_kill",  # the module's worker process is killed (SIGKILL)
 )
+MODULE_FAULTS = ("module_exception", "module_hang", "module_deadlock", "module_slow", "module_kill")
 
 CHECK_OPS = ("max", "min", "equals")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(SchemaError):
     """A scenario file that cannot be run, with the file and the path of the bad field."""
 
-    def __init__(self, source: str, path: str, message: str) -> None:
-        super().__init__(f"{source}: {path}: {message}" if path else f"{source}: {message}")
-        self.source = source
-        self.path = path
 
-
-class _Reader:
-    """Typed access to one mapping of a scenario, remembering where it is for error messages."""
-
-    def __init__(self, data: Any, source: str, path: str) -> None:
-        if not isinstance(data, dict):
-            raise ScenarioError(source, path, f"expected a mapping, got {type(data).__name__}")
-        self.data = data
-        self.source = source
-        self.path = path
-        self.used: set[str] = set()
-
-    def _p(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def error(self, key: str, message: str) -> ScenarioError:
-        return ScenarioError(self.source, self._p(key), message)
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = None) -> Any:
-        self.used.add(key)
-        return self.data.get(key, default)
-
-    def number(
-        self, key: str, default: float | None = None, lo: float | None = None, hi: float | None = None
-    ) -> float:
-        self.used.add(key)
-        if key not in self.data:
-            if default is None:
-                raise self.error(key, "required number is missing")
-            return default
-        value = self.data[key]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(key, f"expected a number, got {value!r}")
-        value = float(value)
-        if value != value:
-            raise self.error(key, "expected a number, got NaN")
-        if lo is not None and value < lo:
-            raise self.error(key, f"expected a number >= {lo}, got {value}")
-        if hi is not None and value > hi:
-            raise self.error(key, f"expected a number <= {hi}, got {value}")
-        return value
-
-    def opt_number(self, key: str, lo: float | None = None, hi: float | None = None) -> float | None:
-        if key not in self.data or self.data[key] is None:
-            self.used.add(key)
-            return None
-        return self.number(key, lo=lo, hi=hi)
-
-    def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
-        self.used.add(key)
-        if key not in self.data:
-            if default is None:
-                raise self.error(key, "required string is missing")
-            return default
-        value = self.data[key]
-        if not isinstance(value, str):
-            raise self.error(key, f"expected a string, got {value!r}")
-        if choices is not None and value not in choices:
-            raise self.error(key, f"expected one of {', '.join(choices)}, got {value!r}")
-        return value
-
-    def boolean(self, key: str, default: bool) -> bool:
-        self.used.add(key)
-        value = self.data.get(key, default)
-        if not isinstance(value, bool):
-            raise self.error(key, f"expected true or false, got {value!r}")
-        return value
-
-    def sub(self, key: str) -> _Reader:
-        self.used.add(key)
-        return _Reader(self.data.get(key) or {}, self.source, self._p(key))
-
-    def profile(self, key: str) -> tuple[tuple[float, float], ...]:
-        """A piecewise profile: a list of [t_s, value] pairs with increasing t_s."""
-        self.used.add(key)
-        value = self.data.get(key)
-        if value is None:
-            return ()
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return ((0.0, float(value)),)
-        if not isinstance(value, list):
-            raise self.error(key, f"expected a list of [t_s, value] pairs or a number, got {value!r}")
-        points: list[tuple[float, float]] = []
-        for i, item in enumerate(value):
-            ok = (
-                isinstance(item, list | tuple)
-                and len(item) == 2
-                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in item)
-            )
-            if not ok:
-                raise self.error(f"{key}[{i}]", f"expected [t_s, value], got {item!r}")
-            if points and item[0] <= points[-1][0]:
-                raise self.error(f"{key}[{i}]", f"times must increase, {item[0]} after {points[-1][0]}")
-            points.append((float(item[0]), float(item[1])))
-        return tuple(points)
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise self.error(unknown[0], "unknown key (a typo?)")
+class _Reader(Reader):
+    error_type = ScenarioError
 
 
 def step_value(profile: tuple[tuple[float, float], ...], t_s: float, default: float = 0.0) -> float:
@@ -186,6 +89,8 @@ class FaultEvent:
     pedal_pct: float = 0.0
     torque_nm: float = 0.0
     delay_ms: float = 0.0
+    module: str = ""  # module faults: which host module
+    slow_ms: float = 0.0
 
     def active(self, t_s: float) -> bool:
         """In effect at t_s: from at_s for duration_s, or to the end of the run when duration_s is 0."""
@@ -220,6 +125,7 @@ class Scenario:
     calibration: str | None  # None: the ECU's default calibration
     corrupt_calibration: bool
     host_mode: str  # "script": accel_profile; "drive": longitudinal override controller
+    host_config: str  # the host configuration (modules, policies): a shipped name or a file
     engage_at_s: float
     accel_profile: tuple[tuple[float, float], ...]
     speed_profile: tuple[tuple[float, float], ...]
@@ -259,6 +165,8 @@ def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
     pedal = r.number("pedal_pct", default=30.0, lo=0.0, hi=100.0) if kind == "driver_brake" else 0.0
     torque = r.number("torque_nm", default=5.0, lo=-20.0, hi=20.0) if kind == "driver_steer" else 0.0
     delay = r.number("delay_ms", default=0.0, lo=0.0, hi=10_000.0) if kind == "delay" else 0.0
+    module = r.string("module") if kind in MODULE_FAULTS else ""
+    slow_ms = r.number("slow_ms", lo=0.0, hi=10_000.0) if kind == "module_slow" else 0.0
     if kind in ("corrupt", "drop", "delay", "repeat") and not frames_raw:
         raise r.error("frames", f"a '{kind}' fault needs the list of frames it affects")
     r.finish()
@@ -271,6 +179,8 @@ def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
         pedal_pct=pedal,
         torque_nm=torque,
         delay_ms=delay,
+        module=module,
+        slow_ms=slow_ms,
     )
 
 
@@ -342,6 +252,9 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     speed_profile = host.profile("speed_profile")
     steer_profile = host.profile("steer_profile")
     stop_line = host.opt_number("stop_line_m", lo=0.0)
+    host_config = host.string("config", default="default")
+    if Path(host_config).suffix in (".yaml", ".yml", ".toml"):
+        host_config = _relative_to(source, host_config)
     for i, (_, a) in enumerate(accel_profile):
         if not -10.0 <= a <= 10.0:
             raise host.error(f"accel_profile[{i}]", f"acceleration {a} m/s^2 is not physical")
@@ -395,6 +308,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         calibration=calibration,
         corrupt_calibration=corrupt_cal,
         host_mode=mode,
+        host_config=host_config,
         engage_at_s=engage_at,
         accel_profile=accel_profile,
         speed_profile=speed_profile,

@@ -71,12 +71,18 @@ def run_sil(
     plant_trace = TraceWriter(run_dir / "plant.csv" if run_dir else None, PLANT_COLUMNS, flush_every=1000)
     host_trace = TraceWriter(run_dir / "host.csv" if run_dir else None, HOST_COLUMNS, flush_every=1000)
     vehicle = open_scenario_vehicle(scenario)
+    host: HostAgent | None = None
     try:
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
         link = HostMaster(bus(link_ch), clock)
         host = HostAgent(
-            scenario, link, t0_s=0.0, sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER), trace=host_trace
+            scenario,
+            link,
+            t0_s=0.0,
+            sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER),
+            trace=host_trace,
+            clock=clock,
         )
         n = round(scenario.duration_s / ECU_PERIOD_S)
         wall0 = time.perf_counter()
@@ -96,8 +102,11 @@ def run_sil(
             "real_time_factor": round(scenario.duration_s / wall, 2) if wall > 0 else None,
             "ecu_vehicle_rx": ecu.rx_stats()["total"],
             "plant_collisions": plant.collisions,
+            "host_runtime": host.summary(),
         }
     finally:
+        if host is not None:
+            host.close()
         plant_trace.close()
         host_trace.close()
         if recorder is not None:

@@ -39,6 +39,7 @@ class FailurePolicy:
     """
 
     action: Action = "restart"
+    on_slow: Action | None = None  # a different reaction to "slow" (a late module still works)
     escalate_to: Action = "stop"
     max_restarts: int = 3
     restart_window_s: float = 30.0
@@ -51,7 +52,11 @@ class FailurePolicy:
     degrade_speed_mps: float = 5.0  # the speed limit a "degrade" imposes
 
     def __post_init__(self) -> None:
-        if self.action not in ACTIONS or self.escalate_to not in ACTIONS:
+        if (
+            self.action not in ACTIONS
+            or self.escalate_to not in ACTIONS
+            or self.on_slow not in (*ACTIONS, None)
+        ):
             raise ValueError(f"policy actions must be one of {ACTIONS}, got {self.action}/{self.escalate_to}")
         if self.escalate_to == "restart":
             raise ValueError("escalate_to cannot be restart: escalation is what happens when restarts fail")

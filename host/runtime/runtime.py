@@ -94,6 +94,8 @@ class Entry:
     started_s: float = 0.0
     busy_mark: tuple[float, float | None, float] | None = None  # (wall, cpu, busy_since) when first late
     recovering_from: float | None = None  # onset of the failure a restart is recovering from
+    seen_completed: int = 0  # completions already judged for slowness
+    next_stale_check_s: float = 0.0
     reported: set[str] = field(default_factory=set)
 
 
@@ -134,6 +136,7 @@ class Runtime:
         self.events: list[SupervisorEvent] = []
         self.start_s: float | None = None
         self._next_health_s = 0.0
+        self._quiet_until_s = -math.inf
         self.limit: SafetyLimit | None = None
         self.stop_requested: StopRequest | None = None
         for topic, kind in (
@@ -146,7 +149,9 @@ class Runtime:
 
     # -- set-up --------------------------------------------------------------------------------------
 
-    def add_module(self, spec: ModuleSpec, factory: ModuleFactory, params: Mapping[str, Any] | None = None) -> None:
+    def add_module(
+        self, spec: ModuleSpec, factory: ModuleFactory, params: Mapping[str, Any] | None = None
+    ) -> None:
         if self.start_s is not None:
             raise RuntimeError("modules are added before start()")
         if spec.name in self.entries:
@@ -175,11 +180,15 @@ class Runtime:
             e.worker = thread_worker(e, self.store, self.clock, self.injector)
         # A restarted module starts on the period grid, not at a time of its own.
         if e.spec.period_s is not None:
-            e.release_k = max(e.release_k, math.ceil((now_s - (self.start_s or 0.0)) / e.spec.period_s - 1e-9))
+            e.release_k = max(
+                e.release_k, math.ceil((now_s - (self.start_s or 0.0)) / e.spec.period_s - 1e-9)
+            )
         e.trigger_sub = self.store.subscribe(e.spec.trigger) if e.spec.trigger else None
         e.pending = False
         e.started_s = now_s
         e.busy_mark = None
+        e.seen_completed = 0
+        e.next_stale_check_s = now_s
         e.restart_at_s = None
         e.state = "starting"
         e.reported.clear()
@@ -199,10 +208,19 @@ class Runtime:
     # -- the loop --------------------------------------------------------------------------------------
 
     def tick(self, now_s: float) -> None:
-        """Supervise, then release what is due (in lockstep: one after the other, waiting for each)."""
+        """Supervise, then release what is due, in dependency order, each release waited for.
+
+        The wait makes a cycle's modules a chain (the controller sees this cycle's status, the link
+        sends this cycle's request): in lockstep it lasts until the step is done (deterministic
+        runs), on wall time at most the module's deadline, after which the rest of the chain goes on
+        without it and the supervisor deals with the late one.
+        """
         if self.injector is not None:
             self.injector.tick(self, now_s)
+        if self.lockstep and now_s < self._quiet_until_s:
+            return  # lockstep fast path: nothing is due, running or failing (see _quiet_until)
         self.supervise(now_s)
+        released = False
         for e in self._order:
             w = e.worker
             if w is None or e.state in ("restarting", "stopped", "failed"):
@@ -213,14 +231,45 @@ class Runtime:
                 e.state = "running"
             if not self._due(e, now_s):
                 continue
-            if w.release(now_s) and self.lockstep:
-                w.wait_done(self.lockstep_timeout_s)
+            if w.release(now_s):
+                released = True
+                w.wait_done(self.lockstep_timeout_s if self.lockstep else e.spec.deadline_s)
             e.pending = False
+        if released:
+            self.supervise(now_s)  # judge this tick's releases now, not a tick later
         if now_s >= self._next_health_s:
             self._publish_health(now_s)
             self._next_health_s += self.health_period_s * max(
                 1, math.ceil((now_s - self._next_health_s) / self.health_period_s + 1e-9)
             )
+        if self.lockstep:
+            self._quiet_until_s = self._quiet_until(now_s)
+
+    def _quiet_until(self, now_s: float) -> float:
+        """In lockstep nothing happens between ticks except what the scheduler starts: until the next
+        release, restart, staleness or health instant, with no worker busy, failed or recovering and
+        no trigger pending, a tick has nothing to do. (On wall time workers fail on their own.)"""
+        until = self._next_health_s
+        for e in self._order:
+            w = e.worker
+            if e.state == "restarting":
+                until = min(until, e.restart_at_s if e.restart_at_s is not None else now_s)
+                continue
+            if w is None or e.state in ("stopped", "failed"):
+                continue
+            if (
+                e.state == "starting"
+                or e.spec.trigger is not None
+                or w.busy_since_s is not None
+                or w.failure is not None
+                or e.recovering_from is not None
+            ):
+                return now_s
+            assert e.spec.period_s is not None and self.start_s is not None
+            until = min(until, self.start_s + e.release_k * e.spec.period_s - 1e-9)
+            if e.spec.max_output_age_s is not None and "stale" not in e.reported:
+                until = min(until, e.next_stale_check_s)
+        return until
 
     def _due(self, e: Entry, now_s: float) -> bool:
         if e.trigger_sub is not None:
@@ -238,7 +287,9 @@ class Runtime:
         e.release_k += behind + 1
         return True
 
-    def run_wall(self, until_s: float, stop: Callable[[], bool] = lambda: False, tick_s: float = 0.001) -> None:
+    def run_wall(
+        self, until_s: float, stop: Callable[[], bool] = lambda: False, tick_s: float = 0.001
+    ) -> None:
         """Tick on the clock every `tick_s` until `until_s` (HIL and the car)."""
         next_s = self.clock.now()
         while not stop():
@@ -266,8 +317,14 @@ class Runtime:
             if found is not None:
                 self._handle(e, now_s, *found)
             elif e.recovering_from is not None and w.stats.completed > 0 and not w.stats.missed[-1]:
-                self._event(e, now_s, "recovered", "first release of the new instance met its deadline",
-                            "none", e.recovering_from)
+                self._event(
+                    e,
+                    now_s,
+                    "recovered",
+                    "first release of the new instance met its deadline",
+                    "none",
+                    e.recovering_from,
+                )
                 e.recovering_from = None
 
     def _detect(self, e: Entry, w: Worker, now_s: float) -> tuple[str, str, float] | None:
@@ -289,7 +346,8 @@ class Runtime:
             if late > spec.hang_after_s:
                 return self._classify_hang(e, w, busy, late)
             return None
-        if "slow" not in e.reported:
+        if "slow" not in e.reported and w.stats.completed != e.seen_completed:
+            e.seen_completed = w.stats.completed
             recent = list(w.stats.missed)[-spec.policy.slow_window :]
             if sum(recent) >= spec.policy.slow_misses:
                 n = spec.policy.slow_misses
@@ -302,12 +360,21 @@ class Runtime:
                     onset,
                 )
         max_age = spec.max_output_age_s
-        if max_age is not None and "stale" not in e.reported and e.state != "starting":
+        if (
+            max_age is not None
+            and now_s >= e.next_stale_check_s
+            and "stale" not in e.reported
+            and e.state != "starting"
+        ):
+            # Ages need store reads: judge them when the oldest output would turn stale, not every tick.
+            oldest = math.inf
             for topic in spec.outputs:
                 obj = self.store.latest(topic)
                 t_last = obj.t_s if obj is not None and obj.t_s >= e.started_s else e.started_s
+                oldest = min(oldest, t_last)
                 if now_s - t_last > max_age:
                     return "stale", f"no new {topic} for {(now_s - t_last) * 1e3:.0f} ms", t_last
+            e.next_stale_check_s = oldest + max_age + 1e-9
         return None
 
     def _classify_hang(self, e: Entry, w: Worker, busy_s: float, late_s: float) -> tuple[str, str, float]:
@@ -332,7 +399,7 @@ class Runtime:
 
     def _handle(self, e: Entry, now_s: float, cause: str, detail: str, onset_s: float) -> None:
         policy = e.spec.policy
-        action = policy.action
+        action = policy.on_slow if cause == "slow" and policy.on_slow is not None else policy.action
         if action == "restart":
             while e.restart_times and now_s - e.restart_times[0] > policy.restart_window_s:
                 e.restart_times.popleft()
@@ -364,7 +431,11 @@ class Runtime:
 
     def _schedule_restart(self, e: Entry, now_s: float, onset_s: float, at_s: float | None = None) -> None:
         policy = e.spec.policy
-        delay = min(policy.backoff_max_s, policy.backoff_s * 2.0 ** len(e.restart_times)) if policy.backoff_s else 0.0
+        delay = (
+            min(policy.backoff_max_s, policy.backoff_s * 2.0 ** len(e.restart_times))
+            if policy.backoff_s
+            else 0.0
+        )
         self._take_down(e)
         e.restart_times.append(now_s)
         e.restarts += 1
@@ -409,8 +480,17 @@ class Runtime:
         self.store.publish(SUPERVISOR_EVENTS, event)
         rel = now_s - (self.start_s or 0.0)
         level = logging.INFO if cause in ("recovered", "dependant") else logging.WARNING
-        log.log(level, "t=%.3f s %s#%d %s (%s) -> %s, detected after %.1f ms",
-                rel, e.spec.name, e.generation, cause, detail, action, event.detect_ms)
+        log.log(
+            level,
+            "t=%.3f s %s#%d %s (%s) -> %s, detected after %.1f ms",
+            rel,
+            e.spec.name,
+            e.generation,
+            cause,
+            detail,
+            action,
+            event.detect_ms,
+        )
 
     # -- health ------------------------------------------------------------------------------------
 
@@ -449,5 +529,7 @@ class Runtime:
                 }
                 for e in self._order
             },
-            "events": [vars(ev) | {"t_rel_s": round(ev.t_s - (self.start_s or 0.0), 4)} for ev in self.events],
+            "events": [
+                vars(ev) | {"t_rel_s": round(ev.t_s - (self.start_s or 0.0), 4)} for ev in self.events
+            ],
         }

@@ -21,6 +21,7 @@ process worker, which can be killed.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import threading
@@ -124,14 +125,16 @@ class ThreadWorker:
         self._factory = factory
         self._clock = clock
         self._inject = inject
-        self._go = threading.Event()
-        self._idle = threading.Event()
+        # Raw locks as binary semaphores: the cheapest hand-over CPython has (an Event allocates a
+        # lock per wait), and lockstep SIL hands over every release of every module.
+        self._go = threading.Lock()
+        self._go.acquire()  # held by the scheduler until a release: the worker blocks on it
+        self._done = threading.Lock()  # held by the worker while a step runs
         self._started = threading.Event()
+        self._ended = False
         self._retiring = False
         self._native_id: int | None = None
-        self.thread = threading.Thread(
-            target=self._run, name=f"module-{spec.name}#{generation}", daemon=True
-        )
+        self.thread = threading.Thread(target=self._run, name=f"module-{spec.name}#{generation}", daemon=True)
         self.thread.start()
 
     # -- scheduler side ------------------------------------------------------------------------------
@@ -146,22 +149,29 @@ class ThreadWorker:
         if self.busy_since_s is not None:
             self.stats.skipped += 1
             return False
+        self._done.acquire()
         self.busy_since_s = now_s
         self.ctx.now_s = now_s
         self.stats.releases += 1
         self.stats.last_release_s = now_s
-        self._idle.clear()
-        self._go.set()
+        self._go.release()
         return True
 
     def wait_done(self, timeout_s: float) -> bool:
-        return self._idle.wait(timeout_s)
+        if not self._done.acquire(timeout=timeout_s):
+            return False
+        self._done.release()
+        return True
+
+    def _wake(self) -> None:
+        with contextlib.suppress(RuntimeError):  # already released: the worker is awake anyway
+            self._go.release()
 
     def wait_started(self, timeout_s: float) -> bool:
         return self._started.wait(timeout_s)
 
     def alive(self) -> bool:
-        return self.thread.is_alive()
+        return not self._ended
 
     def cpu_time_s(self) -> float | None:
         return None if self._native_id is None else task_cpu_time_s("self", self._native_id)
@@ -172,14 +182,16 @@ class ThreadWorker:
         self._retiring = True
         ident = self.thread.ident
         if ident is not None and self.thread.is_alive():
-            ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), ctypes.py_object(ModuleCancelled))
-        self._go.set()
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(
+                ctypes.c_ulong(ident), ctypes.py_object(ModuleCancelled)
+            )
+        self._wake()
 
     def retire(self) -> None:
         """Stop a healthy (or failed) instance at its next release point."""
         self.ctx.fenced = True
         self._retiring = True
-        self._go.set()
+        self._wake()
         if self.thread is not threading.current_thread():
             self.thread.join(timeout=max(0.1, 2 * self.spec.deadline_s))
 
@@ -193,47 +205,45 @@ class ThreadWorker:
     def _run(self) -> None:
         self._native_id = threading.get_native_id()
         try:
+            self._serve()
+        except ModuleCancelled:
+            pass
+        finally:
+            self._ended = True
+
+    def _serve(self) -> None:
+        try:
             module = self._factory()
             module.start(self.ctx)
         except ModuleCancelled:
-            return
+            raise
         except BaseException as exc:
             self._fail("exception", exc, "start")
             self._started.set()
-            self._idle.set()
             return
         self._started.set()
-        self._idle.set()
-        try:
-            while True:
-                self._go.wait()
-                self._go.clear()
-                if self._retiring:
-                    break
-                wall0 = time.perf_counter()
-                try:
-                    if self._inject is not None:
-                        self._inject(self.ctx)
-                    module.step(self.ctx)
-                except ModuleCancelled:
-                    return
-                except BaseException as exc:
-                    self._fail("exception", exc, "step")
-                    self.busy_since_s = None
-                    self._idle.set()
-                    return
-                self._complete(time.perf_counter() - wall0)
-        except ModuleCancelled:
-            return
-        try:
+        while True:
+            self._go.acquire()
+            if self._retiring:
+                break
+            wall0 = time.perf_counter()
+            try:
+                if self._inject is not None:
+                    self._inject(self.ctx)
+                module.step(self.ctx)
+            except ModuleCancelled:
+                raise
+            except BaseException as exc:
+                self._fail("exception", exc, "step")
+                self._done.release()
+                self.busy_since_s = None
+                return
+            exec_s = time.perf_counter() - wall0
+            complete_on_record(self.spec, self.stats, self.busy_since_s, self._clock.now(), exec_s)
+            self._done.release()
+            self.busy_since_s = None
+        with contextlib.suppress(Exception):  # a failing close of a retired instance changes nothing
             module.close()
-        except Exception:
-            pass
-
-    def _complete(self, exec_s: float) -> None:
-        complete_on_record(self.spec, self.stats, self.busy_since_s, self._clock.now(), exec_s)
-        self.busy_since_s = None
-        self._idle.set()
 
 
 def complete_on_record(

@@ -1,0 +1,135 @@
+"""The host's side of the CANopen link to the ECU, as two modules around the controllers.
+
+`EcuRx` polls the link at the start of a cycle and publishes the ECU's status; `EcuTx` ends the
+cycle: it sends the newest control request with the alive counter and produces the heartbeat the
+ECU's watchdog consumes (DESIGN section 4; seed 000 section 2.3: the host sends requests, the ECU
+acts on them only while they keep coming).
+
+EcuTx is the host's last check before the ECU: it sends a control request only if it is fresh
+(`REQUEST_MAX_AGE_S`); if the controller has gone silent it asks for a controlled stop (STOP flag,
+zero acceleration) instead of repeating an old request, and it adds STOP whenever the supervisor
+asked for one. The heartbeat stops only when the host itself stops (or a scenario mutes it): a host
+whose controller failed is still alive, and says so while it stops the car in an orderly way.
+"""
+
+from __future__ import annotations
+
+import math
+
+from bywire.hil.trace import CONTROLLERS, TraceWriter
+from bywire.host.modules.messages import (
+    CONTROL,
+    ECU_REQUEST,
+    ECU_STATUS,
+    MISSION,
+    ODOMETRY,
+    ControlRequest,
+    EcuRequestSent,
+    EcuStatusReport,
+    MissionCommand,
+    Odometry,
+)
+from bywire.host.runtime.module import Module, ModuleContext
+from bywire.host.runtime.topics import STOP_REQUEST
+from bywire.protocol.canopen_node import HostMaster, NmtState
+from bywire.protocol.ecu_types import RequestFlags
+from bywire.protocol.host_link import HostRequest
+
+REQUEST_MAX_AGE_S = 0.1  # 5 host periods: older control requests are not sent
+NMT_START_RETRY_S = 0.2
+
+
+class EcuRx(Module):
+    def __init__(self, link: HostMaster) -> None:
+        self.link = link
+        self._last_rx_s: float | None = None
+
+    def start(self, ctx: ModuleContext) -> None:
+        self.link.set_nmt_state(NmtState.OPERATIONAL)  # this host is in control: the ECU may engage
+
+    def step(self, ctx: ModuleContext) -> None:
+        now = ctx.now_s
+        self.link.poll(now)
+        latest = self.link.latest_status()
+        operational = self.link.ecu_nmt_state(now) is NmtState.OPERATIONAL
+        if latest is None:
+            report = EcuStatusReport(now, False, False, math.nan, 0, 0, operational, 0.0, 0.0, 0.0, 0.0, 0.0)
+        else:
+            status, rx_s = latest
+            fresh = self._last_rx_s is None or rx_s > self._last_rx_s
+            self._last_rx_s = rx_s
+            report = EcuStatusReport(
+                t_s=now,
+                valid=True,
+                fresh=fresh,
+                rx_s=rx_s,
+                state=int(status.state),
+                faults=int(status.faults),
+                nmt_operational=operational,
+                speed_mps=status.speed_mps,
+                accel_mps2=status.accel_mps2,
+                throttle_pct=status.throttle_pct,
+                brake_bar=status.brake_bar,
+                steer_angle_rad=status.steer_angle_rad,
+            )
+        ctx.publish(ECU_STATUS, report)
+
+
+class EcuTx(Module):
+    def __init__(self, link: HostMaster, trace: TraceWriter | None = None, t0_s: float = 0.0) -> None:
+        self.link = link
+        self.trace = trace
+        self.t0_s = t0_s
+        self.counter = 0
+        self._next_nmt_start_s = -math.inf
+
+    def step(self, ctx: ModuleContext) -> None:
+        now = ctx.now_s
+        status: EcuStatusReport | None = ctx.latest(ECU_STATUS)
+        if status is not None and not status.nmt_operational and now >= self._next_nmt_start_s:
+            # CANopen start-up: the master puts the ECU node into OPERATIONAL (and again after a reset).
+            self.link.start_ecu()
+            self._next_nmt_start_s = now + NMT_START_RETRY_S
+        req: ControlRequest | None = ctx.latest(CONTROL)
+        mission: MissionCommand | None = ctx.latest(MISSION)
+        if req is not None and now - req.t_s <= REQUEST_MAX_AGE_S:
+            accel, steer, flags, age_ms = (
+                req.accel_mps2,
+                req.steer_rad,
+                RequestFlags(req.flags),
+                (now - req.t_s) * 1e3,
+            )
+        else:
+            accel, steer, age_ms = 0.0, 0.0, -1.0
+            flags = RequestFlags.STOP | (RequestFlags.ENGAGE if mission is not None and mission.engage else 0)
+        if ctx.latest(STOP_REQUEST) is not None:
+            flags |= RequestFlags.STOP
+        self.counter = (self.counter + 1) & 0xFF
+        self.link.send_request(
+            HostRequest(accel_mps2=accel, steer_angle_rad=steer, flags=flags, counter=self.counter)
+        )
+        heartbeat = mission is None or not mission.heartbeat_mute
+        if heartbeat:
+            self.link.tick(now)
+        ctx.publish(
+            ECU_REQUEST,
+            EcuRequestSent(now, accel, steer, int(flags), self.counter, round(age_ms, 3), heartbeat),
+        )
+        if self.trace is not None:
+            odo: Odometry | None = ctx.latest(ODOMETRY)
+            controller = req.controller if req is not None and age_ms >= 0 else "none"
+            self.trace.append(
+                (
+                    now - self.t0_s,
+                    accel,
+                    steer,
+                    float(int(flags)),
+                    float(status.state if status is not None else 0),
+                    float(status.faults if status is not None else 0),
+                    status.speed_mps if status is not None else 0.0,
+                    req.v_des_mps if req is not None else math.nan,
+                    odo.odometer_m if odo is not None else 0.0,
+                    float(CONTROLLERS.index(controller)),
+                    req.gap_m if req is not None else math.nan,
+                )
+            )
