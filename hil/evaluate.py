@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from bywire.hil.scenario import Check, Scenario, step_value
+from bywire.hil.scenario import MODULE_FAULTS, Check, Scenario, step_value
 from bywire.protocol.ecu_types import EcuState
 
 STANDSTILL_MPS = 0.05  # below this the car counts as stopped (wheel-speed sensor resolution ~0.03 m/s)
@@ -115,6 +115,53 @@ def fault_metrics(plant: dict[str, np.ndarray], scenario: Scenario) -> dict[str,
     return metrics
 
 
+def supervisor_metrics(scenario: Scenario, runtime: dict[str, Any]) -> dict[str, Any]:
+    """What the host's supervisor made of the scenario's module faults (issue 3 contract:
+    `detect_ms`, `action`): the first detection at or after the first module fault.
+
+    `detect_ms` is the supervisor's own detection time, from the failure's onset as it can know it
+    (the release that hung, the exception's instant, the first late release, the last sign of life
+    of a killed worker); `detect_from_injection_ms` counts from the instant the scenario armed the
+    fault, which may precede the module's next release by up to one period.
+    """
+    faults = scenario.faults_of(*MODULE_FAULTS)
+    events = runtime.get("events", [])
+    metrics: dict[str, Any] = {"supervisor_events": len(events)}
+    if not faults:
+        return metrics
+    fault = min(faults, key=lambda f: f.at_s)
+    first = next(
+        (
+            e
+            for e in events
+            if e["module"] == fault.module
+            and e["t_rel_s"] >= fault.at_s - 1e-9
+            and e["cause"] not in ("dependant", "recovered")
+        ),
+        None,
+    )
+    metrics["supervisor_detected"] = first is not None
+    if first is None:
+        metrics.update(detect_ms=None, action=None, supervisor_cause=None)
+        return metrics
+    metrics["detect_ms"] = first["detect_ms"]
+    metrics["detect_from_injection_ms"] = round((first["t_rel_s"] - fault.at_s) * 1e3, 3)
+    metrics["action"] = first["action"]
+    metrics["supervisor_cause"] = first["cause"]
+    metrics["supervisor_detail"] = first["detail"]
+    recovered = next(
+        (
+            e
+            for e in events
+            if e["module"] == fault.module and e["cause"] == "recovered" and e["t_s"] >= first["t_s"]
+        ),
+        None,
+    )
+    metrics["recovered"] = recovered is not None
+    metrics["recover_ms"] = None if recovered is None else round((recovered["t_s"] - first["t_s"]) * 1e3, 3)
+    return metrics
+
+
 def evaluate(
     scenario: Scenario,
     plant: dict[str, np.ndarray],
@@ -164,13 +211,24 @@ def evaluate(
             metrics["crossed_stop_line"] = bool(np.any(plant["distance_m"] > scenario.stop_line_m + 0.05))
     if host is not None and host["t_s"].size:
         metrics["host_requests"] = int(host["t_s"].size)
-    if extra:
-        metrics.update(extra)
+    extra = dict(extra or {})
+    runtime = extra.pop("host_runtime", None)
+    if runtime is not None:
+        metrics.update(supervisor_metrics(scenario, runtime))
+    metrics.update(extra)
     checks = [run_check(c, metrics) for c in scenario.checks]
     verdict = "pass" if checks and all(c["passed"] for c in checks) else "fail"
     if not checks:
         verdict = "pass" if metrics.get("final_state") != "NO_DATA" else "fail"
-    return {"scenario": scenario.name, "verdict": verdict, "checks": checks, "metrics": metrics}
+    document: dict[str, Any] = {
+        "scenario": scenario.name,
+        "verdict": verdict,
+        "checks": checks,
+        "metrics": metrics,
+    }
+    if runtime is not None:
+        document["host_runtime"] = runtime
+    return document
 
 
 def run_check(check: Check, metrics: dict[str, Any]) -> dict[str, Any]:

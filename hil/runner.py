@@ -223,6 +223,8 @@ def run_hil(
                 "run",
                 "--scenario",
                 scenario_file,
+                "--summary",
+                str(run_dir / "host_runtime.json"),
                 "--host-link",
                 host_link_url,
                 "--sensor-bus",
@@ -277,6 +279,9 @@ def run_hil(
             codes[child.name] = child.stop()
             child.close()
         result_extra["exit_codes"] = codes
+    runtime_path = run_dir / "host_runtime.json"
+    if runtime_path.exists():
+        result_extra["host_runtime"] = json.loads(runtime_path.read_text(encoding="utf-8"))
     stats_path = run_dir / "ecu_stats.json"
     if stats_path.exists():
         result_extra["ecu_loop"] = json.loads(stats_path.read_text(encoding="utf-8"))

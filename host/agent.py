@@ -9,6 +9,7 @@ runs in lockstep; as a process (`bywire host run`) the runtime ticks on the wall
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -57,6 +58,11 @@ class HostAgent:
             from bywire.host.runtime.process_worker import process_worker_maker
 
             process_worker = process_worker_maker(lockstep=lockstep)
+        if not lockstep:
+            # A module stuck in a pure-Python loop holds the GIL; the scheduler thread gets it back
+            # only at the interpreter's switch interval (5 ms by default), once per blocking call.
+            # 0.5 ms keeps the supervisor's own timing within its bounds while the culprit spins.
+            sys.setswitchinterval(0.0005)
         self.runtime = Runtime(
             self.store,
             self.clock,

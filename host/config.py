@@ -146,13 +146,13 @@ def _policy(r: _Reader) -> FailurePolicy:
         "slow_misses": int(r.number("slow_misses", default=3.0, lo=1.0, hi=1000.0)),
         "slow_window": int(r.number("slow_window", default=10.0, lo=1.0, hi=1000.0)),
         "degrade_speed_mps": r.number("degrade_speed_mps", default=5.0, lo=0.0, hi=70.0),
+        "restart_as_dependant": r.boolean("restart_as_dependant", True),
+        "silent_releases": int(r.number("silent_releases", default=3.0, lo=1.0, hi=1000.0)),
     }
     if r.has("on_slow"):
         kw["on_slow"] = r.string("on_slow", choices=ACTIONS)
     hang = r.opt_number("hang_after_ms", lo=0.1)
-    age = r.opt_number("max_output_age_ms", lo=0.1)
     kw["hang_after_s"] = None if hang is None else hang / 1e3
-    kw["max_output_age_s"] = None if age is None else age / 1e3
     if kw["slow_window"] < kw["slow_misses"]:
         raise r.error("slow_window", f"must be >= slow_misses ({kw['slow_misses']})")
     r.finish()

@@ -1,8 +1,15 @@
-"""`bywire host run`: the host agent as its own process (wall clock), talking to the ECU over the link."""
+"""`bywire host run [CONFIG]`: the host agent as its own process (wall clock), talking to the ECU over the link.
+
+CONFIG is a host configuration (a shipped name such as `default`, or a file; schema in
+docs/host_config.md); without it the scenario's `host.config` is used. Command-line bus URLs
+override the file's.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 from pathlib import Path
 
 from bywire.clock import WallClock
@@ -10,21 +17,28 @@ from bywire.hil.process_util import StopFlag, wait_for_t0
 from bywire.hil.scenario import load_scenario
 from bywire.hil.trace import HOST_COLUMNS, TraceWriter
 from bywire.host.agent import HostAgent
+from bywire.host.config import load_host_config
 from bywire.protocol.bus_url import open_bus
 from bywire.protocol.canopen_node import HostMaster
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--scenario", default="demo", help="scenario whose host section drives the agent (default demo)"
+        "config",
+        nargs="?",
+        help="host configuration: a shipped name (default, isolated_perception) or a YAML/TOML file "
+        "(default: the scenario's host.config)",
     )
     p.add_argument(
-        "--host-link",
-        default="udp://127.0.0.1:47001?peer=127.0.0.1:47000",
-        help="bus URL of the host<->ECU link (CANopen), CAN or Ethernet (udp://...)",
+        "--scenario", help="scenario whose mission drives the agent (default: the configuration's)"
     )
-    p.add_argument("--sensor-bus", help="bus URL where the radar frames arrive (optional)")
+    p.add_argument(
+        "--host-link", help="bus URL of the host<->ECU link (CANopen), CAN or Ethernet (udp://...)"
+    )
+    p.add_argument("--sensor-bus", help="bus URL where the radar frames arrive")
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
+    p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
+    p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
     p.add_argument("--t0", help="start instant on CLOCK_MONOTONIC, or '-' to read it from stdin")
     p.add_argument("--seconds", type=float, help="stop after this long (default: the scenario's duration)")
     p.add_argument(
@@ -36,28 +50,54 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if args.config is not None:
+        config = load_host_config(args.config)
+        scenario = load_scenario(args.scenario or config.scenario)
+    else:
+        scenario = load_scenario(args.scenario or "demo")
+        config = load_host_config(scenario.host_config)
     clock = WallClock()
     stop = StopFlag()
-    link_bus = open_bus(args.host_link)
-    sensor_bus = open_bus(args.sensor_bus) if args.sensor_bus else None
+    link_bus = open_bus(args.host_link or config.ecu_link)
+    sensor_url = args.sensor_bus or config.sensor_bus
+    sensor_bus = open_bus(sensor_url) if sensor_url else None
     trace = TraceWriter(args.trace, HOST_COLUMNS, flush_every=25)
+    recorder = None
     if args.rt_priority:
         from bywire.ecu.realtime import apply_realtime
 
         print(f"host: real-time: {apply_realtime(priority=args.rt_priority).summary()}", flush=True)
+    agent: HostAgent | None = None
     try:
         link = HostMaster(link_bus, clock)
         t0 = wait_for_t0(args.t0)
         agent = HostAgent(
-            scenario, link, t0_s=t0, sensor_bus=sensor_bus, trace=trace, in_process_faults=False
+            scenario,
+            link,
+            t0_s=t0,
+            sensor_bus=sensor_bus,
+            trace=trace,
+            config=config,
+            clock=clock,
+            lockstep=False,
+            in_process_faults=False,
         )
+        if args.record is not None:
+            from bywire.host.runtime.mcap_log import McapRecorder
+
+            recorder = McapRecorder(args.record)
+            agent.store.add_tap(recorder.record)
         end = t0 + (args.seconds if args.seconds is not None else scenario.duration_s + 2.0)
         clock.sleep_until(t0)
-        while not stop() and clock.now() < end:
-            agent.step(clock.now())
-            clock.sleep_until(agent.next_due_s)  # frames wait in the socket until the next 20 ms step
+        agent.run_wall(end, stop)
     finally:
+        if agent is not None:
+            agent.close()
+            if args.summary is not None:
+                args.summary.write_text(json.dumps(agent.summary(), indent=1, default=str), encoding="utf-8")
+        if recorder is not None:
+            recorder.close()
         trace.close()
         link_bus.shutdown()
         if sensor_bus is not None:

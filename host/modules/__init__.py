@@ -95,12 +95,12 @@ def _longitudinal(params: Mapping[str, Any], res: HostResources | None) -> Modul
 KINDS: dict[str, ModuleKind] = {
     k.kind: k
     for k in (
-        ModuleKind("scenario_mission", (), (m.MISSION,), 0.02, 0.005, _mission, doc="the scenario's script"),
-        ModuleKind("ecu_rx", (), (m.ECU_STATUS,), 0.02, 0.005, _ecu_rx, doc="ECU status from the link"),
+        ModuleKind("scenario_mission", (), (m.MISSION,), 0.02, 0.010, _mission, doc="the scenario's script"),
+        ModuleKind("ecu_rx", (), (m.ECU_STATUS,), 0.02, 0.010, _ecu_rx, doc="ECU status from the link"),
         ModuleKind(
-            "odometry", (m.ECU_STATUS,), (m.ODOMETRY,), 0.02, 0.005, _odometry, False, "distance driven"
+            "odometry", (m.ECU_STATUS,), (m.ODOMETRY,), 0.02, 0.010, _odometry, False, "distance driven"
         ),
-        ModuleKind("radar_io", (), (m.RADAR,), 0.02, 0.005, _radar, doc="radar frames off the sensor bus"),
+        ModuleKind("radar_io", (), (m.RADAR,), 0.02, 0.010, _radar, doc="radar frames off the sensor bus"),
         ModuleKind(
             "lead_tracker",
             (m.RADAR, m.ODOMETRY),
@@ -126,7 +126,7 @@ KINDS: dict[str, ModuleKind] = {
             (m.CONTROL, m.MISSION, m.ECU_STATUS, m.ODOMETRY, STOP_REQUEST),
             (m.ECU_REQUEST,),
             0.02,
-            0.005,
+            0.010,
             _ecu_tx,
             doc="requests and heartbeat to the ECU",
         ),

@@ -33,7 +33,8 @@ class FailurePolicy:
 
     `hang_after_s` bounds detection of a hung or deadlocked release; `slow_misses` deadline misses
     within the last `slow_window` releases make the module "slow"; an output older than
-    `max_output_age_s` (default: 3 periods) is "stale". Restarts back off exponentially from
+    `silent_releases` completed releases in a row without a publication make it "stale" (counted in
+    releases, not seconds, so a late scheduler cannot make its modules look silent). Restarts back off exponentially from
     `backoff_s`; after `max_restarts` within `restart_window_s` the supervisor escalates to
     `escalate_to`.
     """
@@ -48,8 +49,12 @@ class FailurePolicy:
     hang_after_s: float | None = None  # default: max(3 deadlines, 2 periods)
     slow_misses: int = 3
     slow_window: int = 10
-    max_output_age_s: float | None = None  # default: 3 periods (trigger modules: not checked)
+    silent_releases: int = 3
     degrade_speed_mps: float = 5.0  # the speed limit a "degrade" imposes
+    # Restart this module when a module it consumes from is restarted (its state derives from the
+    # producer's outputs). A stateless sink such as the ECU link's sender says no: restarting it would
+    # only reset its alive counter.
+    restart_as_dependant: bool = True
 
     def __post_init__(self) -> None:
         if (
@@ -62,6 +67,8 @@ class FailurePolicy:
             raise ValueError("escalate_to cannot be restart: escalation is what happens when restarts fail")
         if self.max_restarts < 0 or self.slow_misses < 1 or self.slow_window < self.slow_misses:
             raise ValueError("need max_restarts >= 0 and 1 <= slow_misses <= slow_window")
+        if self.silent_releases < 1:
+            raise ValueError("silent_releases must be at least 1")
 
 
 @dataclass(frozen=True)
@@ -94,12 +101,6 @@ class ModuleSpec:
         if self.policy.hang_after_s is not None:
             return self.policy.hang_after_s
         return max(3.0 * self.deadline_s, 2.0 * (self.period_s or 0.0))
-
-    @property
-    def max_output_age_s(self) -> float | None:
-        if self.policy.max_output_age_s is not None:
-            return self.policy.max_output_age_s
-        return None if self.period_s is None else 3.0 * self.period_s
 
 
 class ModuleContext:

@@ -16,7 +16,7 @@ Ours judges each module from the outside, by data flow and timing alone:
 - hang / deadlock: a release has not completed after `hang_after_s`; the worker's CPU time tells
   a spinning loop (hang) from a blocked one (deadlock);
 - slow: `slow_misses` deadline misses within the last `slow_window` releases;
-- stale: an output older than `max_output_age_s` although the module is not busy (it runs but
+- stale: `silent_releases` completed releases in a row without a publication (it runs but
   produces nothing).
 
 and acts on the module's `FailurePolicy`: restart it and its dependants in dependency order with
@@ -94,8 +94,7 @@ class Entry:
     started_s: float = 0.0
     busy_mark: tuple[float, float | None, float] | None = None  # (wall, cpu, busy_since) when first late
     recovering_from: float | None = None  # onset of the failure a restart is recovering from
-    seen_completed: int = 0  # completions already judged for slowness
-    next_stale_check_s: float = 0.0
+    seen_completed: int = 0  # completions already judged for slowness and silence
     reported: set[str] = field(default_factory=set)
 
 
@@ -188,11 +187,12 @@ class Runtime:
         e.started_s = now_s
         e.busy_mark = None
         e.seen_completed = 0
-        e.next_stale_check_s = now_s
         e.restart_at_s = None
         e.state = "starting"
         e.reported.clear()
-        if self.lockstep or e.spec.isolation == "process":
+        if self.lockstep:
+            # Deterministic runs wait for the start (a process worker's start-up takes no simulated
+            # time); on wall time a starting worker is simply not released until it is ready.
             wait = getattr(e.worker, "wait_started", None)
             if wait is not None:
                 wait(START_TIMEOUT_S)
@@ -267,8 +267,6 @@ class Runtime:
                 return now_s
             assert e.spec.period_s is not None and self.start_s is not None
             until = min(until, self.start_s + e.release_k * e.spec.period_s - 1e-9)
-            if e.spec.max_output_age_s is not None and "stale" not in e.reported:
-                until = min(until, e.next_stale_check_s)
         return until
 
     def _due(self, e: Entry, now_s: float) -> bool:
@@ -346,8 +344,16 @@ class Runtime:
             if late > spec.hang_after_s:
                 return self._classify_hang(e, w, busy, late)
             return None
-        if "slow" not in e.reported and w.stats.completed != e.seen_completed:
-            e.seen_completed = w.stats.completed
+        if w.stats.completed == e.seen_completed:
+            return None  # slowness and silence are judged once per completed release
+        e.seen_completed = w.stats.completed
+        if w.stats.silent >= spec.policy.silent_releases and "stale" not in e.reported:
+            return (
+                "stale",
+                f"{w.stats.silent} releases in a row published none of {', '.join(spec.outputs)}",
+                w.stats.silent_since_s if w.stats.silent_since_s is not None else now_s,
+            )
+        if "slow" not in e.reported:
             recent = list(w.stats.missed)[-spec.policy.slow_window :]
             if sum(recent) >= spec.policy.slow_misses:
                 n = spec.policy.slow_misses
@@ -359,22 +365,6 @@ class Runtime:
                     f"{spec.deadline_s * 1e3:.0f} ms deadline (exec max {exec_ms.max():.1f} ms)",
                     onset,
                 )
-        max_age = spec.max_output_age_s
-        if (
-            max_age is not None
-            and now_s >= e.next_stale_check_s
-            and "stale" not in e.reported
-            and e.state != "starting"
-        ):
-            # Ages need store reads: judge them when the oldest output would turn stale, not every tick.
-            oldest = math.inf
-            for topic in spec.outputs:
-                obj = self.store.latest(topic)
-                t_last = obj.t_s if obj is not None and obj.t_s >= e.started_s else e.started_s
-                oldest = min(oldest, t_last)
-                if now_s - t_last > max_age:
-                    return "stale", f"no new {topic} for {(now_s - t_last) * 1e3:.0f} ms", t_last
-            e.next_stale_check_s = oldest + max_age + 1e-9
         return None
 
     def _classify_hang(self, e: Entry, w: Worker, busy_s: float, late_s: float) -> tuple[str, str, float]:
@@ -424,12 +414,16 @@ class Runtime:
         self._schedule_restart(e, now_s, onset_s)
         for name in dependants(self.specs, e.spec.name):
             d = self.entries[name]
-            if d.state in ("restarting", "stopped", "failed"):
+            if d.state in ("restarting", "stopped", "failed") or not d.spec.policy.restart_as_dependant:
                 continue
             self._event(d, now_s, "dependant", f"consumes outputs of {e.spec.name}", "restart", now_s)
-            self._schedule_restart(d, now_s, now_s, at_s=e.restart_at_s)
+            self._schedule_restart(d, now_s, None, at_s=e.restart_at_s)
 
-    def _schedule_restart(self, e: Entry, now_s: float, onset_s: float, at_s: float | None = None) -> None:
+    def _schedule_restart(
+        self, e: Entry, now_s: float, onset_s: float | None, at_s: float | None = None
+    ) -> None:
+        """Take `e` down and start it again after its back-off (or at `at_s`, a producer's restart);
+        `onset_s` None: a dependant's restart, which reports no recovery of its own."""
         policy = e.spec.policy
         delay = (
             min(policy.backoff_max_s, policy.backoff_s * 2.0 ** len(e.restart_times))
@@ -466,6 +460,8 @@ class Runtime:
             self.store.publish(STOP_REQUEST, self.stop_requested)
 
     def _event(self, e: Entry, now_s: float, cause: str, detail: str, action: str, onset_s: float) -> None:
+        # On wall time a failure can happen after this tick began (during the chain's releases).
+        now_s = max(now_s, self.clock.now())
         event = SupervisorEvent(
             t_s=now_s,
             module=e.spec.name,

@@ -62,6 +62,8 @@ class ReleaseStats:
     skipped: int = 0  # releases due while the previous one was still running (overruns)
     last_release_s: float | None = None
     last_done_s: float | None = None
+    silent: int = 0  # completed releases in a row that published nothing
+    silent_since_s: float | None = None  # release time of the first of them
 
     def __post_init__(self) -> None:
         self.exec_s: deque[float] = deque(maxlen=HISTORY)
@@ -150,7 +152,7 @@ class ThreadWorker:
             self.stats.skipped += 1
             return False
         self._done.acquire()
-        self.busy_since_s = now_s
+        self.busy_since_s = self._clock.now()  # the real release instant (a chain releases late)
         self.ctx.now_s = now_s
         self.stats.releases += 1
         self.stats.last_release_s = now_s
@@ -227,6 +229,7 @@ class ThreadWorker:
             if self._retiring:
                 break
             wall0 = time.perf_counter()
+            published_before = self.ctx.published
             try:
                 if self._inject is not None:
                     self._inject(self.ctx)
@@ -239,7 +242,8 @@ class ThreadWorker:
                 self.busy_since_s = None
                 return
             exec_s = time.perf_counter() - wall0
-            complete_on_record(self.spec, self.stats, self.busy_since_s, self._clock.now(), exec_s)
+            published = self.ctx.published != published_before
+            complete_on_record(self.spec, self.stats, self.busy_since_s, self._clock.now(), exec_s, published)
             self._done.release()
             self.busy_since_s = None
         with contextlib.suppress(Exception):  # a failing close of a retired instance changes nothing
@@ -247,7 +251,12 @@ class ThreadWorker:
 
 
 def complete_on_record(
-    spec: ModuleSpec, stats: ReleaseStats, release_s: float | None, done_s: float, exec_s: float
+    spec: ModuleSpec,
+    stats: ReleaseStats,
+    release_s: float | None,
+    done_s: float,
+    exec_s: float,
+    published: bool,
 ) -> None:
     """Book one completed release: a miss when the wall execution time or the release-to-done time
     on the runtime clock exceeds the deadline (the first catches slow code in lockstep SIL, where
@@ -258,6 +267,12 @@ def complete_on_record(
     stats.last_done_s = done_s
     stats.exec_s.append(exec_s)
     stats.missed.append(missed)
+    if published:
+        stats.silent, stats.silent_since_s = 0, None
+    else:
+        stats.silent += 1
+        if stats.silent_since_s is None:
+            stats.silent_since_s = release_s if release_s is not None else done_s
     if missed:
         stats.misses += 1
         stats.miss_times_s.append(done_s)
