@@ -1,4 +1,4 @@
-"""`bywire host run [CONFIG]`: the host agent as its own process (wall clock), talking to the ECU over the link.
+"""`bywire host run [CONFIG]`: the host agent as its own process on the wall clock, talking to the ECU.
 
 CONFIG is a host configuration (a shipped name such as `default`, or a file; schema in
 docs/host_config.md); without it the scenario's `host.config` is used. Command-line bus URLs

@@ -32,9 +32,9 @@ class FailurePolicy:
     """How the supervisor reacts to this module failing, and how quickly it must notice.
 
     `hang_after_s` bounds detection of a hung or deadlocked release; `slow_misses` deadline misses
-    within the last `slow_window` releases make the module "slow"; an output older than
-    `silent_releases` completed releases in a row without a publication make it "stale" (counted in
-    releases, not seconds, so a late scheduler cannot make its modules look silent). Restarts back off exponentially from
+    within the last `slow_window` releases make the module "slow"; `silent_releases` completed
+    releases in a row without a publication make it "stale" (counted in releases, not seconds, so a
+    late scheduler cannot make its modules look silent). Restarts back off exponentially from
     `backoff_s`; after `max_restarts` within `restart_window_s` the supervisor escalates to
     `escalate_to`.
     """
