@@ -24,6 +24,10 @@ def run_scenario(
 ) -> dict[str, Any]:
     """Run one scenario and return the result document (also written to `json_path` / `report_dir`)."""
     scenario = load_scenario(name_or_file)
+    from bywire.host.agent import check_module_faults
+    from bywire.host.config import load_host_config
+
+    check_module_faults(scenario, load_host_config(scenario.host_config))  # before any process starts
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if report_dir is not None:
         run_dir = report_dir

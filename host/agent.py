@@ -17,7 +17,7 @@ import can
 
 from bywire.clock import Clock, SimClock
 from bywire.hil.module_faults import ModuleFaultInjector
-from bywire.hil.scenario import Scenario
+from bywire.hil.scenario import MODULE_FAULTS, Scenario, ScenarioError
 from bywire.hil.trace import HOST_COLUMNS, TraceWriter
 from bywire.host.config import HostConfig, load_host_config
 from bywire.host.modules import KINDS, HostResources
@@ -52,6 +52,7 @@ class HostAgent:
         self.resources = HostResources(scenario, t0_s, link, sensor_bus, self.trace)
         # In HIL the runner freezes or kills the real process; in SIL the agent stops itself.
         self.in_process_faults = in_process_faults
+        check_module_faults(scenario, self.config)
         self.stopped = False
         process_worker = None
         if any(m.spec.isolation == "process" for m in self.config.modules):
@@ -108,3 +109,30 @@ class HostAgent:
     def close(self) -> None:
         if self._started:
             self.runtime.close()
+
+
+def check_module_faults(scenario: Scenario, config: HostConfig) -> None:
+    """A module fault that names no module of this host would silently do nothing: refuse it."""
+    modules = {m.spec.name: m for m in config.modules}
+    for i, f in enumerate(scenario.faults):
+        if f.kind not in MODULE_FAULTS:
+            continue
+        if f.module not in modules:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].module",
+                f"no module {f.module!r} in host configuration {config.source} ({', '.join(modules)})",
+            )
+        isolated = modules[f.module].spec.isolation == "process"
+        if f.kind == "module_kill" and not isolated:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].kind",
+                f"{f.module} runs in a thread of the host: only a worker process can be killed",
+            )
+        if f.kind != "module_kill" and isolated:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].kind",
+                f"{f.kind} is injected into thread workers; {f.module} runs in a process",
+            )

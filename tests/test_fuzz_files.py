@@ -8,9 +8,9 @@ never anything else, never a silently wrong object.
 from __future__ import annotations
 
 import json
-from typing import Any
 
 import yaml
+from fuzz_util import mutate
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -54,41 +54,10 @@ def test_mutated_calibrations_are_refused_or_identical(data: st.DataObject) -> N
     assert cal == default_calibration()
 
 
-def _mutate(node: Any, draw: Any) -> Any:
-    if isinstance(node, dict) and node:
-        key = draw(st.sampled_from(sorted(node)))
-        out = dict(node)
-        choice = draw(st.integers(0, 3))
-        if choice == 0:
-            del out[key]
-        elif choice == 1:
-            out[key] = draw(
-                st.one_of(
-                    st.none(),
-                    st.booleans(),
-                    st.integers(-(10**6), 10**6),
-                    st.floats(allow_nan=True),
-                    st.text(max_size=8),
-                    st.lists(st.integers(), max_size=3),
-                )
-            )
-        elif choice == 2:
-            out[key + "_x"] = 1
-        else:
-            out[key] = _mutate(node[key], draw)
-        return out
-    if isinstance(node, list) and node:
-        i = draw(st.integers(0, len(node) - 1))
-        out_list = list(node)
-        out_list[i] = _mutate(node[i], draw)
-        return out_list
-    return draw(st.one_of(st.none(), st.text(max_size=5), st.integers(), st.floats(allow_nan=True)))
-
-
 @settings(max_examples=300, deadline=None)
 @given(st.data())
 def test_mutated_scenarios_parse_or_name_the_field(data: st.DataObject) -> None:
-    doc = _mutate(GOOD_SCENARIO, data.draw)
+    doc = mutate(GOOD_SCENARIO, data.draw)
     try:
         scenario = parse_scenario(doc, "fuzz.yaml")
     except ScenarioError as exc:

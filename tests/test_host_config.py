@@ -1,0 +1,125 @@
+"""The host configuration file: shipped ones load, variants extend, bad ones name the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from fuzz_util import mutate
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bywire.host.config import HostConfigError, load_host_config, parse_host_config, shipped_configs
+
+DEFAULT = yaml.safe_load(shipped_configs()["default"].read_text())
+
+
+def test_shipped_configurations_load() -> None:
+    assert set(shipped_configs()) >= {"default", "isolated_perception"}
+    cfg = load_host_config("default")
+    assert [m.spec.name for m in cfg.modules] == [
+        "mission",
+        "ecu_rx",
+        "odometry",
+        "radar",
+        "lead_tracker",
+        "longitudinal",
+        "ecu_tx",
+    ]
+    lon = cfg.module("longitudinal").spec
+    assert lon.period_s == pytest.approx(0.02) and lon.deadline_s == pytest.approx(0.01)
+    assert lon.policy.on_slow == "degrade" and lon.policy.escalate_to == "stop"
+    assert cfg.module("ecu_tx").spec.policy.restart_as_dependant is False
+    assert cfg.live_view_port is None
+
+
+def test_a_variant_overrides_modules_by_name(tmp_path: Path) -> None:
+    iso = load_host_config("isolated_perception")
+    assert iso.module("lead_tracker").spec.isolation == "process"
+    assert iso.module("lead_tracker").spec.policy.escalate_to == "degrade"
+    assert len(iso.modules) == len(load_host_config("default").modules)
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(
+        "extends: default\nmodules:\n  - {name: longitudinal, deadline_ms: 15, policy: {slow_misses: 5}}\n"
+    )
+    lon = load_host_config(str(mine)).module("longitudinal").spec
+    assert lon.deadline_s == pytest.approx(0.015)
+    assert lon.policy.slow_misses == 5 and lon.policy.on_slow == "degrade"  # the rest of the policy kept
+
+
+@pytest.mark.parametrize(
+    ("change", "where", "what"),
+    [
+        ({"modules": [{"name": "x", "kind": "warp_drive"}]}, "modules[0].kind", "expected one of"),
+        (
+            {"modules": [{"name": "x", "kind": "odometry", "policy": {"action": "reboot"}}]},
+            "modules[0].policy.action",
+            "reboot",
+        ),
+        ({"modules": [{"name": "x", "kind": "odometry", "period_ms": -1}]}, "modules[0].period_ms", ">= 0.1"),
+        (
+            {"modules": [{"name": "x", "kind": "ecu_rx", "isolation": "process"}]},
+            "modules[0].isolation",
+            "buses",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "odometry"}, {"name": "a", "kind": "lead_tracker"}]},
+            "modules[1].name",
+            "two modules",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "odometry"}, {"name": "b", "kind": "odometry"}]},
+            "modules[1]",
+            "already produced",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "odometry", "policy": {"slow_misses": 5, "slow_window": 2}}]},
+            "modules[0].policy.slow_window",
+            ">= slow_misses",
+        ),
+        ({"modules": [{"name": "a b", "kind": "odometry"}]}, "modules[0].name", "letters"),
+        ({"modules": []}, "modules", "non-empty"),
+        ({"modulez": 1, "modules": [{"name": "a", "kind": "odometry"}]}, "modulez", "unknown key"),
+    ],
+)
+def test_bad_configurations_name_the_field(change: dict, where: str, what: str) -> None:
+    with pytest.raises(HostConfigError) as err:
+        parse_host_config(change, "bad.yaml")
+    assert err.value.path == where
+    assert what in str(err.value)
+    assert str(err.value).startswith("bad.yaml: ")
+
+
+def test_unknown_and_missing_configurations() -> None:
+    with pytest.raises(HostConfigError, match="shipped ones: default"):
+        load_host_config("nonexistent")
+    with pytest.raises(HostConfigError, match="no such host configuration file"):
+        load_host_config("/nowhere/host.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_mutated_configurations_parse_or_name_the_field(data: st.DataObject) -> None:
+    doc = mutate(DEFAULT, data.draw)
+    try:
+        cfg = parse_host_config(doc, "fuzz.yaml")
+    except HostConfigError as exc:
+        assert str(exc).startswith("fuzz.yaml")
+    else:
+        assert cfg.modules and all(m.spec.deadline_s > 0 for m in cfg.modules)
+
+
+def test_module_faults_must_name_a_module_of_the_host(tmp_path: Path) -> None:
+    from bywire.hil.run import run_scenario
+    from bywire.hil.scenario import ScenarioError
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "name: bad\nduration_s: 1\nfaults:\n  - {at_s: 0.5, kind: module_hang, module: longitudinl}\n"
+    )
+    with pytest.raises(ScenarioError, match=r"faults\[0\].module: no module 'longitudinl'"):
+        run_scenario(str(bad))
+    bad.write_text("name: bad\nduration_s: 1\nfaults:\n  - {at_s: 0.5, kind: module_kill, module: longitudinal}\n")
+    with pytest.raises(ScenarioError, match="only a worker process can be killed"):
+        run_scenario(str(bad))
