@@ -1,0 +1,110 @@
+"""An optional live view of the store's topics in Foxglove, over the Foxglove WebSocket protocol.
+
+Issue 3: "a Foxglove WebSocket server (foxglove-sdk) publishing the topics while the host runs, off
+by default". Nothing starts unless a `LiveView` is constructed; then `store.add_tap(view.publish)`
+shows every topic live (open `view.url` in Foxglove as a "Foxglove WebSocket" connection).
+
+Messages and schemas are exactly those of the MCAP recorder (`mcap_log.encode_object`,
+`mcap_log.schema_bytes`: one encoder), so a layout made on a recording works live and vice versa.
+Times are the objects' `t_s` in ns (simulated time in SIL). The server runs on its own foxglove
+Context, so several views (or tests) do not share channels, and is bound to loopback by default:
+the protocol has no authentication.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import can
+import foxglove
+from foxglove import Channel, Context, Schema
+
+from bywire.host.runtime.mcap_log import (
+    CAN_TOPIC_PREFIX,
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    CanFrame,
+    LogError,
+    encode_object,
+    schema_bytes,
+    schema_name_of,
+    time_ns,
+)
+
+
+class LiveView:
+    """A Foxglove WebSocket server publishing store objects (`publish`, a store tap) and CAN frames."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", *, name: str = "bywire") -> None:
+        self._context = Context()
+        self._lock = threading.Lock()
+        self._channels: dict[str, tuple[Channel, type]] = {}
+        self._closed = False
+        try:
+            self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context)
+        except Exception as exc:  # the SDK's own error types: a port in use, a bad address
+            raise OSError(f"live view: cannot serve on {host}:{port}: {exc}") from exc
+        self.host = host
+        self.port = self._server.port
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def publish(self, topic: str, obj: object) -> None:
+        """Publish a dataclass instance with a `t_s` on `topic` (after close: ignored)."""
+        t_s = getattr(obj, "t_s", None)
+        if isinstance(t_s, bool) or not isinstance(t_s, int | float):
+            raise LogError(self.url, f"topic {topic!r}: {type(obj).__name__} has no float t_s to time it")
+        self._publish(topic, obj, time_ns(float(t_s)))
+
+    def publish_frame(self, bus: str, msg: can.Message, t_s: float | None = None) -> None:
+        """Publish a CAN frame on `/can/<bus>` as the recorder records it."""
+        frame = CanFrame.from_message(msg, t_s)
+        self._publish(CAN_TOPIC_PREFIX + bus, frame, time_ns(frame.timestamp))
+
+    def _publish(self, topic: str, obj: object, log_time_ns: int) -> None:
+        try:
+            payload = encode_object(obj)
+        except LogError as exc:
+            raise LogError(self.url, f"topic {topic!r}: {exc.problem}") from None
+        with self._lock:
+            # A live view is a convenience: publishing into a closed one (shutdown order) is not an error.
+            if self._closed:
+                return
+            channel = self._channel(topic, type(obj))
+        channel.log(payload, log_time=log_time_ns)
+
+    def _channel(self, topic: str, cls: type) -> Channel:
+        known = self._channels.get(topic)
+        if known is not None:
+            if known[1] is not cls:
+                raise LogError(self.url, f"topic {topic!r} carries {known[1].__name__}, not {cls.__name__}")
+            return known[0]
+        schema = Schema(name=schema_name_of(cls), encoding=SCHEMA_ENCODING, data=schema_bytes(cls))
+        channel = Channel(topic, schema=schema, message_encoding=MESSAGE_ENCODING, context=self._context)
+        self._channels[topic] = (channel, cls)
+        return channel
+
+    def topics(self) -> dict[str, Any]:
+        """Topic -> the foxglove Schema advertised for it."""
+        with self._lock:
+            return {topic: channel.schema() for topic, (channel, _) in self._channels.items()}
+
+    def close(self) -> None:
+        """Stop the server and close the channels (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            channels = [channel for channel, _ in self._channels.values()]
+        for channel in channels:
+            channel.close()
+        self._server.stop()
+
+    def __enter__(self) -> LiveView:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
