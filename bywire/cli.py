@@ -26,7 +26,12 @@ def _hil_run_arguments(p: argparse.ArgumentParser, scenario_required: bool = Tru
     )
     p.add_argument("--json", type=Path, help="write the verdict and metrics as JSON to this file")
     p.add_argument("--report", type=Path, help="directory for the report: plots, traces, logs, JSON")
-    p.add_argument("--record", type=Path, help="record every frame (python-can log: .log .asc .blf .csv)")
+    p.add_argument(
+        "--record",
+        type=Path,
+        help="record the run: FILE.mcap holds every bus frame and every host topic (bywire log ...); "
+        "other suffixes (.log .asc .blf .csv) record the frames with python-can",
+    )
     p.add_argument(
         "--host-link",
         choices=("remote", "udp"),
@@ -71,6 +76,17 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--seconds", type=float, default=20.0, help="how long to measure (default 20)")
     be.add_argument("--json", type=Path, help="write the loop statistics as JSON")
     be.add_argument("--report", type=Path, help="directory for the run's logs and traces")
+
+    br = bench.add_parser(
+        "runtime", help="object store and cross-process transport: latency and throughput, with baselines"
+    )
+    br.add_argument("--seconds", type=float, default=None, help="scale the measuring time (default ~30 s)")
+    br.add_argument("--json", type=Path, help="write the results as JSON")
+
+    log = sub.add_parser("log", help="recordings (MCAP): info, plot, replay")
+    from bywire.host.runtime import log_cli
+
+    log_cli.add_arguments(log.add_subparsers(dest="log_command", required=True, metavar="COMMAND"))
 
     bus = sub.add_parser("bus", help="virtual CAN buses").add_subparsers(dest="bus_command", required=True)
     serve = bus.add_parser("serve", help="serve a python-can virtual bus to other processes on loopback")
@@ -160,9 +176,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _cmd_hil_run(args, "demo", "hil")
             return _cmd_hil_run(args, args.scenario, "sil")
         if args.command == "bench":
+            if args.bench_command == "runtime":
+                from bywire.host.runtime import bench as runtime_bench
+
+                return runtime_bench.main(args)
             from bywire.hil.bench import bench_ecu
 
             return bench_ecu(args.seconds, args.json, args.report)
+        if args.command == "log":
+            from bywire.host.runtime import log_cli
+
+            return log_cli.main(args)
         if args.command == "bus":
             from bywire.protocol.bus_url import run_bus_server
 

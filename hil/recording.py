@@ -1,26 +1,55 @@
-"""Recording every frame of a run with python-can's loggers (.log, .asc, .blf, .csv, .trc by suffix).
+"""Recording a run: every bus frame, and with MCAP also every topic of the host (issue 3, part 4).
 
-One file for all buses of a run: each frame carries its bus in `channel` ("vehicle", "host_link"),
-so a replay or a viewer can tell the ECU's vehicle CAN from its host link.
+By the file's suffix: `.mcap` records into MCAP (`host.runtime.mcap_log`: Foxglove opens it, and
+`bywire log info|plot|replay` read it); any other suffix uses python-can's loggers (.log, .asc,
+.blf, .csv, .trc), frames only. One file for all buses of a run: each frame carries its bus
+("vehicle", "host_link"), in MCAP as its topic `/can/<bus>`.
+
+In SIL the frames and the host's topics go into one recorder in one process. In HIL the host
+process records its topics itself (it must: its store is in that process) and the runner records
+the frames; `merge_recordings` then interleaves both by time into the file asked for. A host that
+crashed leaves a readable prefix of its part (the recorder's crash bound), and the merge keeps it.
 """
 
 from __future__ import annotations
 
+import itertools
+import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import can
+from mcap.writer import CompressionType, Writer
 
 from bywire.hil.sil_bus import received_copy
+from bywire.host.runtime.mcap_log import LogError, McapLogReader, McapRecorder, RawMessage
+from bywire.protocol.timebase import rx_time_s
+
+
+def is_mcap(path: Path) -> bool:
+    return path.suffix.lower() == ".mcap"
 
 
 class Recorder:
-    """Drains listener buses into one python-can log file; call `pump()` regularly, `close()` at the end."""
+    """Drains listener buses into one file; call `pump()` regularly, `close()` at the end.
 
-    def __init__(self, path: Path, buses: dict[str, can.BusABC]) -> None:
+    `run_clock(msg)` gives a frame's time on the run's clock (SIL: the simulated timestamp as is;
+    HIL: python-can's epoch timestamp mapped to CLOCK_MONOTONIC, the host's time base).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        buses: dict[str, can.BusABC],
+        run_clock: Callable[[can.Message], float] | None = None,
+    ) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self.buses = buses
-        self.logger = can.Logger(str(path))
+        self.run_clock = run_clock or (lambda msg: float(msg.timestamp))
+        self.mcap: McapRecorder | None = McapRecorder(path) if is_mcap(path) else None
+        self.logger = None if self.mcap is not None else can.Logger(str(path))
         self.frames = 0
 
     def pump(self) -> int:
@@ -30,12 +59,79 @@ class Recorder:
                 msg = bus.recv(timeout=0)
                 if msg is None:
                     break
-                # A copy: in SIL receivers share one frame object, which must stay untouched.
-                self.logger(received_copy(msg, msg.timestamp, name))
+                if self.mcap is not None:
+                    self.mcap.record_frame(name, msg, t_s=self.run_clock(msg))
+                else:
+                    assert self.logger is not None
+                    # A copy: in SIL receivers share one frame object, which must stay untouched.
+                    self.logger(received_copy(msg, msg.timestamp, name))
                 n += 1
         self.frames += n
         return n
 
     def close(self) -> None:
         self.pump()
-        self.logger.stop()
+        if self.mcap is not None:
+            self.mcap.close()
+        if self.logger is not None:
+            self.logger.stop()
+
+
+def wall_run_clock(msg: can.Message) -> float:
+    """A received frame's time on CLOCK_MONOTONIC (HIL: python-can stamps epoch time)."""
+    return rx_time_s(msg, time.monotonic())
+
+
+def _stream(path: Path) -> Iterator[RawMessage]:
+    reader = McapLogReader(path)
+    try:
+        yield from reader.messages()
+    except LogError:
+        return  # damage after a readable prefix: keep what was readable (the reader said where)
+
+
+def merge_recordings(out: Path, parts: Sequence[Path]) -> dict[str, Any]:
+    """Merge MCAP recordings into `out` in log-time order, schemas and channels as they were.
+
+    A part that is missing or unreadable from the start is skipped and reported, so one crashed
+    process does not cost the other parts of a run.
+    """
+    out.parent.mkdir(parents=True, exist_ok=True)
+    report: dict[str, Any] = {"parts": {}, "messages": 0}
+    streams = []
+    for p in parts:
+        if not p.exists():
+            report["parts"][p.name] = "missing"
+            continue
+        report["parts"][p.name] = "ok"
+        streams.append(_stream(p))
+    with out.open("wb") as f:
+        writer = Writer(f, compression=CompressionType.ZSTD, enable_data_crcs=True)
+        writer.start(profile="", library="bywire merge")
+        schemas: dict[tuple[str, str, bytes], int] = {}
+        channels: dict[tuple[str, str, int], int] = {}
+        # Sorted in memory (a part is only roughly in time order: buses are drained one after the
+        # other, topics come from several threads); a run's messages fit easily.
+        for msg in sorted(itertools.chain(*streams), key=lambda m: m.log_time_ns):
+            sch = msg.channel.schema
+            schema_id = 0
+            if sch is not None:
+                key = (sch.name, sch.encoding, sch.data)
+                if key not in schemas:
+                    schemas[key] = writer.register_schema(sch.name, sch.encoding, sch.data)
+                schema_id = schemas[key]
+            ckey = (msg.channel.topic, msg.channel.message_encoding, schema_id)
+            if ckey not in channels:
+                channels[ckey] = writer.register_channel(
+                    msg.channel.topic, msg.channel.message_encoding, schema_id
+                )
+            writer.add_message(
+                channels[ckey],
+                log_time=msg.log_time_ns,
+                data=msg.data,
+                publish_time=msg.publish_time_ns,
+                sequence=msg.sequence,
+            )
+            report["messages"] += 1
+        writer.finish()
+    return report

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from bywire.hil.recording import Recorder
+from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_clock
 from bywire.hil.scenario import Scenario
 from bywire.hil.sil import RunResult
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, read_trace
@@ -102,6 +102,10 @@ class Child:
             return "".join(self.log_path.read_text(encoding="utf-8").splitlines(keepends=True)[-n:])
         except OSError:
             return ""
+
+
+HOST_TOPICS_PART = "host_topics.mcap"  # the host process records its store here
+FRAMES_PART = "frames.mcap"  # the runner records the buses here; both are merged into --record
 
 
 def _cli() -> list[str]:
@@ -225,6 +229,11 @@ def run_hil(
                 scenario_file,
                 "--summary",
                 str(run_dir / "host_runtime.json"),
+                *(
+                    ["--record", str(run_dir / HOST_TOPICS_PART)]
+                    if record is not None and is_mcap(record)
+                    else []
+                ),
                 "--host-link",
                 host_link_url,
                 "--sensor-bus",
@@ -255,7 +264,8 @@ def run_hil(
             buses = {"vehicle": open_bus(vehicle_url)}
             if host_link == "remote":
                 buses["host_link"] = open_bus(host_link_url)
-            recorder = Recorder(record, buses)
+            frames_to = run_dir / FRAMES_PART if is_mcap(record) else record
+            recorder = Recorder(frames_to, buses, run_clock=wall_run_clock)
             rec_thread = threading.Thread(target=_record_loop, args=(recorder, stop_recording), daemon=True)
             rec_thread.start()
         t0 = time.monotonic() + START_MARGIN_S
@@ -279,6 +289,10 @@ def run_hil(
             codes[child.name] = child.stop()
             child.close()
         result_extra["exit_codes"] = codes
+    if record is not None and is_mcap(record):
+        result_extra["recording"] = merge_recordings(
+            record, [run_dir / HOST_TOPICS_PART, run_dir / FRAMES_PART]
+        )
     runtime_path = run_dir / "host_runtime.json"
     if runtime_path.exists():
         result_extra["host_runtime"] = json.loads(runtime_path.read_text(encoding="utf-8"))

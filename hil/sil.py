@@ -84,6 +84,8 @@ def run_sil(
             trace=host_trace,
             clock=clock,
         )
+        if recorder is not None and recorder.mcap is not None:
+            host.store.add_tap(recorder.mcap.record)  # topics and frames in one file, one clock
         n = round(scenario.duration_s / ECU_PERIOD_S)
         wall0 = time.perf_counter()
         report_every = max(1, n // 20)

@@ -9,8 +9,10 @@ runs in lockstep; as a process (`bywire host run`) the runtime ticks on the wall
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import can
@@ -21,6 +23,7 @@ from bywire.hil.scenario import MODULE_FAULTS, Scenario, ScenarioError
 from bywire.hil.trace import HOST_COLUMNS, TraceWriter
 from bywire.host.config import HostConfig, load_host_config
 from bywire.host.modules import KINDS, HostResources
+from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.runtime import Runtime
 from bywire.host.runtime.store import ObjectStore
@@ -94,14 +97,28 @@ class HostAgent:
             self.stopped = True  # SIL's stand-in for SIGSTOP / SIGKILL of the host process
             return
         if not self._started:
-            self.runtime.start(now_s)
-            self._started = True
+            self._start(now_s)
         self.runtime.tick(now_s)
 
     def run_wall(self, until_s: float, stop: Callable[[], bool]) -> None:
-        self.runtime.start(self.clock.now())
-        self._started = True
+        self._start(self.clock.now())
         self.runtime.run_wall(until_s, stop, self.config.tick_s)
+
+    def _start(self, now_s: float) -> None:
+        # First on the record: what a replay needs to rebuild this host (scenario and configuration).
+        self.store.publish(
+            RUN_INFO,
+            RunInfo(
+                t_s=now_s,
+                scenario_source=self.scenario.source,
+                scenario_text=_read_text(self.scenario.source),
+                host_config_source=self.config.source,
+                host_config_json=json.dumps(self.config.data, sort_keys=True),
+                lockstep=self.runtime.lockstep,
+            ),
+        )
+        self.runtime.start(now_s)
+        self._started = True
 
     def summary(self) -> dict[str, Any]:
         return self.runtime.summary()
@@ -136,3 +153,10 @@ def check_module_faults(scenario: Scenario, config: HostConfig) -> None:
                 f"faults[{i}].kind",
                 f"{f.kind} is injected into thread workers; {f.module} runs in a process",
             )
+
+
+def _read_text(path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except OSError:
+        return ""  # a scenario built in memory: the recording cannot carry it

@@ -11,8 +11,9 @@ field by field, so a variant (perception in its own process, say) states only wh
 
 from __future__ import annotations
 
+import copy
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,7 @@ class HostConfig:
     health_period_s: float
     live_view_port: int | None
     modules: tuple[ModuleConfig, ...]
+    data: dict[str, Any] = field(default_factory=dict)  # as parsed (after `extends`): for recordings
 
     def module(self, name: str) -> ModuleConfig:
         for m in self.modules:
@@ -223,7 +225,15 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
             producers[topic] = m.spec.name
     r.finish()
     return HostConfig(
-        source, ecu_link, sensor_bus, scenario, tick_s, health_s, port if live else None, modules
+        source,
+        ecu_link,
+        sensor_bus,
+        scenario,
+        tick_s,
+        health_s,
+        port if live else None,
+        modules,
+        copy.deepcopy(data),
     )
 
 

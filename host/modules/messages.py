@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bywire.host.runtime.mcap_log import register_type
 from bywire.host.runtime.store import linear_interpolation
 
 MISSION = "/mission/command"
@@ -20,8 +21,10 @@ RADAR = "/radar/target"
 LEAD = "/perception/lead"
 ODOMETRY = "/ego/odometry"
 CONTROL = "/control/request"
+RUN_INFO = "/run/info"
 
 
+@register_type
 @dataclass(frozen=True)
 class MissionCommand:
     """What the mission wants now: the scenario's script until the mission planner exists (issue 5)."""
@@ -39,6 +42,7 @@ class MissionCommand:
     stop_line_m: float  # along the path from the start (nan: no stop line)
 
 
+@register_type
 @dataclass(frozen=True)
 class EcuStatusReport:
     """The ECU's latest status as the host received it (`fresh`: a new one arrived this release)."""
@@ -57,6 +61,7 @@ class EcuStatusReport:
     steer_angle_rad: float
 
 
+@register_type
 @linear_interpolation("odometer_m", "speed_mps")
 @dataclass(frozen=True)
 class Odometry:
@@ -68,6 +73,7 @@ class Odometry:
     valid: bool
 
 
+@register_type
 @dataclass(frozen=True)
 class RadarReport:
     """The radar's newest target (`valid` false: no target, or none received for too long)."""
@@ -79,6 +85,7 @@ class RadarReport:
     range_rate_mps: float
 
 
+@register_type
 @dataclass(frozen=True)
 class LeadTrack:
     """The vehicle ahead in our lane, as the perception believes it."""
@@ -89,6 +96,7 @@ class LeadTrack:
     v_lead_mps: float
 
 
+@register_type
 @dataclass(frozen=True)
 class ControlRequest:
     """The longitudinal (and scripted lateral) request for the ECU, with why it was chosen."""
@@ -102,6 +110,7 @@ class ControlRequest:
     gap_m: float  # nan: no lead
 
 
+@register_type
 @dataclass(frozen=True)
 class EcuRequestSent:
     """What actually went to the ECU this release (after the link's own freshness check)."""
@@ -113,3 +122,19 @@ class EcuRequestSent:
     counter: int
     request_age_ms: float  # age of the control request sent (-1: none, a stop was sent instead)
     heartbeat: bool
+
+
+@register_type
+@dataclass(frozen=True)
+class RunInfo:
+    """What a recording needs to be replayed on its own: the scenario and host configuration as run.
+
+    Published once, when the runtime starts (`t_s` = the start of its release grid).
+    """
+
+    t_s: float
+    scenario_source: str
+    scenario_text: str  # the scenario file as it was (YAML or TOML, by the source's suffix)
+    host_config_source: str
+    host_config_json: str  # the configuration after `extends`, as parsed
+    lockstep: bool  # SIL (simulated time) or wall time

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bywire.clock import Clock
+from bywire.host.runtime.mcap_log import register_type
 from bywire.host.runtime.module import ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.worker import Failure, ReleaseStats, complete_on_record, task_cpu_time_s
@@ -38,6 +39,7 @@ HANDSHAKE_PERIOD_S = 0.01
 PARENT_CHECK_S = 0.5  # how often an idle child checks that its host still exists
 
 
+@register_type
 @dataclass(frozen=True)
 class WorkerSignal:
     """Control between host and child: hello / step / stop down, ready / started / done / error up."""

@@ -212,8 +212,10 @@ class Runtime:
 
         The wait makes a cycle's modules a chain (the controller sees this cycle's status, the link
         sends this cycle's request): in lockstep it lasts until the step is done (deterministic
-        runs), on wall time at most the module's deadline, after which the rest of the chain goes on
-        without it and the supervisor deals with the late one.
+        runs); on wall time until it is done or hung (`hang_after_s`), after which the rest of the
+        chain goes on without it and the supervisor deals with it. A late module thus delays its
+        consumers rather than letting them run on the previous cycle's data: the data flow stays
+        causal, so a recording of a wall-time run replays exactly.
         """
         if self.injector is not None:
             self.injector.tick(self, now_s)
@@ -233,7 +235,12 @@ class Runtime:
                 continue
             if w.release(now_s):
                 released = True
-                w.wait_done(self.lockstep_timeout_s if self.lockstep else e.spec.deadline_s)
+                if self.lockstep:
+                    w.wait_done(self.lockstep_timeout_s)
+                elif not w.wait_done(e.spec.deadline_s):
+                    # Late: sample its CPU time now, so a hang can be told from a deadlock at once.
+                    e.busy_mark = (time.perf_counter(), w.cpu_time_s(), w.busy_since_s or now_s)
+                    w.wait_done(max(0.0, e.spec.hang_after_s - e.spec.deadline_s))
             e.pending = False
         if released:
             self.supervise(now_s)  # judge this tick's releases now, not a tick later

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bywire.host.runtime.mcap_log import register_type
+
 SUPERVISOR_EVENTS = "/supervisor/events"
 SAFETY_LIMIT = "/supervisor/limit"
 STOP_REQUEST = "/supervisor/stop"
 MODULE_HEALTH = "/runtime/health"
 
 
+@register_type
 @dataclass(frozen=True)
 class SupervisorEvent:
     """One detection or action of the supervisor, with its cause and how long detection took.
@@ -33,6 +36,7 @@ class SupervisorEvent:
     detect_ms: float
 
 
+@register_type
 @dataclass(frozen=True)
 class SafetyLimit:
     """A limit every motion module must respect from `t_s` on (the supervisor's "degrade")."""
@@ -42,6 +46,7 @@ class SafetyLimit:
     reason: str
 
 
+@register_type
 @dataclass(frozen=True)
 class StopRequest:
     """Ask the ECU for a controlled stop (request flag STOP), with why."""
@@ -50,6 +55,7 @@ class StopRequest:
     reason: str
 
 
+@register_type
 @dataclass(frozen=True)
 class ModuleHealth:
     """A module's state and timing, published by the runtime every `health_period_s`."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
+import os
 import threading
 import time
 import traceback
@@ -103,6 +104,27 @@ def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
         return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
     except (OSError, IndexError, ValueError):
         return None
+
+
+MODULE_PRIORITY_BELOW = 2  # real-time priority steps between the scheduler thread and its modules
+
+
+def below_scheduler() -> None:
+    """Run the calling (worker) thread below the scheduler's real-time priority, if it has one.
+
+    The scheduler is also the supervisor: a module spinning at the scheduler's own SCHED_FIFO
+    priority keeps it off the CPU (and holds the GIL), delaying the detection of exactly that
+    module by tens of milliseconds on two cores. One priority step below, the scheduler preempts
+    it whenever it wakes. Threads inherit the policy of their creator; normal scheduling is left as is.
+    """
+    try:
+        policy = os.sched_getscheduler(0)
+        if policy not in (os.SCHED_FIFO, os.SCHED_RR):
+            return
+        prio = os.sched_getparam(0).sched_priority
+        os.sched_setscheduler(0, policy, os.sched_param(max(1, prio - MODULE_PRIORITY_BELOW)))
+    except (OSError, AttributeError):
+        pass  # not Linux, or not allowed: modules stay where they are
 
 
 class ThreadWorker:
@@ -206,6 +228,7 @@ class ThreadWorker:
 
     def _run(self) -> None:
         self._native_id = threading.get_native_id()
+        below_scheduler()
         try:
             self._serve()
         except ModuleCancelled:
