@@ -14,7 +14,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(BIN)/bywire hil demo --report reports/demo --record reports/demo/frames.log
+	$(BIN)/bywire hil demo --report reports/demo --record reports/demo/run.mcap
 
 test: setup
 	$(BIN)/ruff check .

@@ -73,3 +73,6 @@ class ModuleFaultInjector:
                 continue  # not started yet (or not a process worker: refused when the host is built)
             self._take(i)
             os.kill(pid, signal.SIGKILL)
+            process = getattr(entry.worker, "process", None)
+            if runtime.lockstep and process is not None:
+                process.join(1.0)  # dead before the supervisor looks: SIL stays deterministic

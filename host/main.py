@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 from bywire.clock import WallClock
 from bywire.hil.process_util import StopFlag, wait_for_t0
@@ -39,6 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
     p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
     p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
+    p.add_argument(
+        "--live-view",
+        type=int,
+        metavar="PORT",
+        help="serve every topic live to Foxglove (ws://127.0.0.1:PORT; default: the configuration's, off)",
+    )
     p.add_argument("--t0", help="start instant on CLOCK_MONOTONIC, or '-' to read it from stdin")
     p.add_argument("--seconds", type=float, help="stop after this long (default: the scenario's duration)")
     p.add_argument(
@@ -63,7 +70,8 @@ def main(args: argparse.Namespace) -> int:
     sensor_url = args.sensor_bus or config.sensor_bus
     sensor_bus = open_bus(sensor_url) if sensor_url else None
     trace = TraceWriter(args.trace, HOST_COLUMNS, flush_every=25)
-    recorder = None
+    recorder: Any = None  # McapRecorder when asked for
+    live: Any = None  # LiveView when asked for
     if args.rt_priority:
         from bywire.ecu.realtime import apply_realtime
 
@@ -83,6 +91,17 @@ def main(args: argparse.Namespace) -> int:
             lockstep=False,
             in_process_faults=False,
         )
+        port = args.live_view if args.live_view is not None else config.live_view_port
+        if port is not None:
+            try:
+                from bywire.host.runtime.live_view import LiveView
+            except ImportError as exc:
+                hint = "pip install 'bywire[live]'"
+                raise SystemExit(f"the live view needs foxglove-sdk: {hint} ({exc})") from None
+
+            live = LiveView(port)
+            agent.store.add_tap(live.publish)
+            print(f"host: live view for Foxglove on {live.url}", flush=True)
         if args.record is not None:
             from bywire.host.runtime.mcap_log import McapRecorder
 
@@ -98,6 +117,8 @@ def main(args: argparse.Namespace) -> int:
                 args.summary.write_text(json.dumps(agent.summary(), indent=1, default=str), encoding="utf-8")
         if recorder is not None:
             recorder.close()
+        if live is not None:
+            live.close()
         trace.close()
         link_bus.shutdown()
         if sensor_bus is not None:

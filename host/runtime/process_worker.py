@@ -22,8 +22,10 @@ and slow-downs are injected into thread workers.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
+import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -33,9 +35,16 @@ from bywire.clock import Clock
 from bywire.host.runtime.mcap_log import register_type
 from bywire.host.runtime.module import ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
-from bywire.host.runtime.worker import Failure, ReleaseStats, complete_on_record, task_cpu_time_s
+from bywire.host.runtime.worker import (
+    Failure,
+    ReleaseStats,
+    below_scheduler,
+    complete_on_record,
+    task_cpu_time_s,
+)
 
 HANDSHAKE_PERIOD_S = 0.01
+DEATH_POLL_S = 0.002  # how often a wait for a step also checks that the child is still alive
 PARENT_CHECK_S = 0.5  # how often an idle child checks that its host still exists
 
 
@@ -57,8 +66,38 @@ def _topics(name: str, generation: int) -> tuple[str, str]:
     return f"/runtime/worker/{name}/{generation}/ctl", f"/runtime/worker/{name}/{generation}/status"
 
 
+def _drop_realtime() -> int:
+    """Put the calling thread on normal scheduling; return the real-time priority it had (0: none).
+
+    A child inherits the scheduling of the thread that forks it, and a spawned interpreter spends
+    its first second importing: at SCHED_FIFO that would take a CPU from the simulator and the
+    buses (seen: the ECU's vehicle-report watchdog stopping the car). So the child starts at
+    normal priority and takes its real-time priority only once it is ready to run steps.
+    """
+    try:
+        if os.sched_getscheduler(0) not in (os.SCHED_FIFO, os.SCHED_RR):
+            return 0
+        prio = os.sched_getparam(0).sched_priority
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        return int(prio)
+    except (OSError, AttributeError):
+        return 0
+
+
+def _restore_realtime(priority: int) -> None:
+    if priority:
+        with contextlib.suppress(OSError, AttributeError):
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+
+
 def _child_main(
-    spec: ModuleSpec, kind: str, params: dict[str, Any], generation: int, in_ep: str, out_ep: str
+    spec: ModuleSpec,
+    kind: str,
+    params: dict[str, Any],
+    generation: int,
+    in_ep: str,
+    out_ep: str,
+    rt_priority: int = 0,
 ) -> None:
     from bywire.host.modules import KINDS
     from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber
@@ -87,6 +126,8 @@ def _child_main(
             pub.send(status_topic, WorkerSignal(0.0, "error", pid=pid, error=f"start: {_describe(exc)}"))
             time.sleep(0.1)  # let the report leave before the process ends
             return
+        # The module's step runs at the priority of the host's module threads.
+        _restore_realtime(rt_priority)
         pub.send(status_topic, WorkerSignal(0.0, "started", pid=pid))
         while True:
             msg = ctl.wait(PARENT_CHECK_S)
@@ -134,7 +175,14 @@ def _describe(exc: BaseException) -> str:
 
 
 class ProcessWorker:
-    """The host's handle on one module instance in a child process (the `Worker` protocol)."""
+    """The host's handle on one module instance in a child process (the `Worker` protocol).
+
+    Starting a process (spawn, the child's imports, the transport's shared-memory services) takes
+    hundreds of milliseconds: far longer than a tick. So the start and the end of a worker happen on
+    a thread of their own, never on the scheduler's: the rest of the host keeps its rhythm while a
+    perception process restarts. Until the child has answered the handshake the worker is not
+    ready, and the scheduler does not release it.
+    """
 
     def __init__(
         self,
@@ -145,41 +193,72 @@ class ProcessWorker:
         clock: Clock,
         generation: int,
     ) -> None:
-        from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber, new_endpoint
-
         self.spec = spec
         self.generation = generation
         self.stats = ReleaseStats()
         self.failure: Failure | None = None
         self.busy_since_s: float | None = None
+        self.pid: int | None = None
+        self.process: Any = None
         self._store = store
         self._clock = clock
+        self._kind = kind
+        self._params = {k: v for k, v in params.items() if k != "kind"}
         self._ctl_topic, status_topic = _topics(spec.name, generation)
         store.declare(status_topic, WorkerSignal, history=64)
         self._status = store.subscribe(status_topic)
-        in_ep = new_endpoint(f"{spec.name}-{generation}-in")
-        out_ep = new_endpoint(f"{spec.name}-{generation}-out")
-        self._pub = TopicPublisher(in_ep)
-        self._pub.attach(store, spec.inputs)
-        self._sub = TopicSubscriber(out_ep, store)
+        self._pub: Any = None
+        self._sub: Any = None
         self._seq = 0
         self._started = False
         self._closed = False
-        ctx = mp.get_context("spawn")
-        self.process = ctx.Process(
-            target=_child_main,
-            args=(spec, kind, {k: v for k, v in params.items() if k != "kind"}, generation, in_ep, out_ep),
-            name=f"bywire-{spec.name}#{generation}",
-            daemon=True,
-        )
-        self.process.start()
-        self.pid: int | None = self.process.pid
+        self._booted = threading.Event()
+        self._ending: threading.Thread | None = None
+        threading.Thread(target=self._boot, name=f"boot-{spec.name}#{generation}", daemon=True).start()
+
+    def _boot(self) -> None:
+        from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber, new_endpoint
+
+        # The boot thread keeps a real-time priority (below the scheduler's) while it holds the GIL in
+        # the transport's set-up: on normal priority it would be preempted with the GIL in hand,
+        # and the scheduler would wait for it (seen: 100 ms without a heartbeat). Only the fork
+        # itself runs on normal priority, which the child inherits (see _drop_realtime).
+        below_scheduler()
+        rt_priority = 0
+        try:
+            if self._closed:
+                return  # given up before it started
+            in_ep = new_endpoint(f"{self.spec.name}-{self.generation}-in")
+            out_ep = new_endpoint(f"{self.spec.name}-{self.generation}-out")
+            self._pub = TopicPublisher(in_ep)
+            self._pub.attach(self._store, self.spec.inputs)
+            self._sub = TopicSubscriber(out_ep, self._store)
+            ctx = mp.get_context("spawn")
+            self.process = ctx.Process(
+                target=_child_main,
+                args=(self.spec, self._kind, self._params, self.generation, in_ep, out_ep, rt_priority),
+                name=f"bywire-{self.spec.name}#{self.generation}",
+                daemon=True,
+            )
+            rt_priority = _drop_realtime()
+            try:
+                self.process.start()
+            finally:
+                _restore_realtime(rt_priority)
+            self.pid = self.process.pid
+        except Exception as exc:  # a worker that cannot start is a crashed worker
+            self.failure = Failure(
+                "crashed", f"could not start the worker process: {_describe(exc)}", self._clock.now()
+            )
+        finally:
+            self._booted.set()
 
     # -- the control stream --------------------------------------------------------------------------
 
     def _pump(self) -> None:
-        for sig in self._status:
-            self._handle_one(sig)
+        if self._booted.is_set() and not self._closed:
+            for sig in self._status:
+                self._handle_one(sig)
 
     def ready(self) -> bool:
         self._pump()
@@ -187,8 +266,10 @@ class ProcessWorker:
 
     def wait_started(self, timeout_s: float) -> bool:
         end = time.monotonic() + timeout_s
+        if not self._booted.wait(timeout_s):
+            return False
         while not self.ready():
-            if not self.process.is_alive() or time.monotonic() > end:
+            if self.process is None or not self.process.is_alive() or time.monotonic() > end:
                 return False
             self._status_wait(min(HANDSHAKE_PERIOD_S, end - time.monotonic()))
         return True
@@ -221,8 +302,8 @@ class ProcessWorker:
 
     def release(self, now_s: float) -> bool:
         self._pump()
-        if self.failure is not None or not self._started:
-            return False
+        if self.failure is not None or not self._started or not self.process.is_alive():
+            return False  # a dead child is the supervisor's to find, not a release to wait for
         if self.busy_since_s is not None:
             self.stats.skipped += 1
             return False
@@ -241,35 +322,58 @@ class ProcessWorker:
             if remaining <= 0 or not self.process.is_alive():
                 self._pump()
                 return self.busy_since_s is None
-            self._status_wait(min(remaining, 0.05))
+            self._status_wait(min(remaining, DEATH_POLL_S))
         return True
 
     def alive(self) -> bool:
+        if not self._booted.is_set():
+            return True  # still starting: not ready, not dead
         self._pump()
-        return self.process.is_alive()
+        return self.process is not None and self.process.is_alive()
 
     def cpu_time_s(self) -> float | None:
         return None if self.pid is None else task_cpu_time_s(self.pid, self.pid)
 
     def abandon(self) -> None:
-        self.process.kill()
-        self._close()
+        """Kill the child (hung, or its instance given up) and close the streams, off the scheduler."""
+        self._end(kill=True)
 
     def retire(self) -> None:
-        if self.process.is_alive():
-            self._pub.send(self._ctl_topic, WorkerSignal(self._clock.now(), "stop"))
-            self.process.join(timeout=0.5)
-            if self.process.is_alive():
-                self.process.kill()
-        self._close()
+        """Ask the child to stop after its current step; kill it if it does not, off the scheduler."""
+        self._end(kill=False)
 
-    def _close(self) -> None:
+    def _end(self, kill: bool) -> None:
         if self._closed:
             return
-        self._closed = True
-        self._sub.close()  # nothing of this instance reaches the store any more (the fence)
-        self._pub.close()
-        self.process.join(timeout=1.0)
+        self._closed = True  # _pump stops handing over the child's signals at once (never blocks)
+        self._ending = threading.Thread(
+            target=self._shutdown, args=(kill,), name=f"end-{self.spec.name}", daemon=True
+        )
+        self._ending.start()
+
+    def join(self, timeout_s: float) -> None:
+        """Wait for a retired or abandoned worker's process to be gone (the host's own shutdown)."""
+        if self._ending is not None:
+            self._ending.join(timeout_s)
+
+    def _shutdown(self, kill: bool) -> None:
+        self._booted.wait()
+        if self._sub is not None:
+            self._sub.close()  # first: nothing of this instance reaches the store any more (the fence)
+        proc = self.process
+        if proc is not None and proc.is_alive():
+            if kill:
+                proc.kill()
+            else:
+                with contextlib.suppress(Exception):
+                    self._pub.send(self._ctl_topic, WorkerSignal(self._clock.now(), "stop"))
+                proc.join(timeout=0.5)
+                if proc.is_alive():
+                    proc.kill()
+        if self._pub is not None:
+            self._pub.close()
+        if proc is not None:
+            proc.join(timeout=1.0)
 
 
 def process_worker_maker(lockstep: bool) -> Any:

@@ -42,11 +42,12 @@ from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.mcap_log import CAN_TOPIC_PREFIX, LogError, read_objects
 from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec, dependency_order
 from bywire.host.runtime.store import ObjectStore
-from bywire.host.runtime.topics import MODULE_HEALTH, SUPERVISOR_EVENTS, SupervisorEvent
+from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST, SUPERVISOR_EVENTS, SupervisorEvent
 
 DEFAULT_ABS_TOL = 1e-9
 DEFAULT_REL_TOL = 1e-9
 MAX_REPORTED = 20  # mismatches listed per topic
+SUPERVISOR_TOPICS = (SAFETY_LIMIT, STOP_REQUEST)
 
 
 class ReplayError(ValueError):
@@ -94,8 +95,8 @@ def _load(path: Path) -> tuple[RunInfo, dict[str, list[Any]]]:
     by_topic: dict[str, list[Any]] = defaultdict(list)
     info: RunInfo | None = None
     for entry in read_objects(path):
-        if entry.topic.startswith(CAN_TOPIC_PREFIX) or entry.topic == MODULE_HEALTH:
-            continue  # frames went to adapters that are not replayed; health is the runtime's own
+        if entry.topic.startswith((CAN_TOPIC_PREFIX, "/runtime/")):
+            continue  # frames went to adapters that are not replayed; health and workers are the runtime's
         if entry.topic == RUN_INFO and isinstance(entry.obj, RunInfo):
             info = info or entry.obj
             continue
@@ -192,18 +193,20 @@ def replay(path: Path, modules: list[str] | None = None) -> ReplayResult:
     inputs = sorted(t for t in recorded if t not in outputs and t != SUPERVISOR_EVENTS)
 
     # The schedule: inputs at their times; each module at the times of its recorded releases
-    # (its first output topic's objects); supervisor restarts of replayed modules at theirs.
+    # (its first output topic's objects); supervisor restarts of replayed modules at theirs. The
+    # supervisor acts after a tick's releases, so its topics and restarts come last at an instant.
     events: list[tuple[float, int, int, Any]] = []  # (t, phase, rank, payload)
     for topic in inputs:
+        phase = 3 if topic in SUPERVISOR_TOPICS else 0
         for obj in recorded[topic]:
-            events.append((obj.t_s, 0, 0, (topic, obj)))
+            events.append((obj.t_s, phase, 0, (topic, obj)))
     restarts = [
         e
         for e in recorded.get(SUPERVISOR_EVENTS, [])
         if isinstance(e, SupervisorEvent) and e.module in names and e.action == "restart"
     ]
     for ev in restarts:
-        events.append((ev.t_s, 1, 0, ev.module))
+        events.append((ev.t_s, 4, 0, ev.module))
     for rank, spec in enumerate(order):
         for obj in recorded.get(spec.outputs[0], []):
             events.append((obj.t_s, 2, rank, spec.name))
@@ -226,12 +229,12 @@ def replay(path: Path, modules: list[str] | None = None) -> ReplayResult:
     last_release: dict[str, float] = {}
     for t, phase, _, payload in events:
         clock.advance_to(max(clock.now(), t))
-        if phase == 0:
+        if phase in (0, 3):
             topic, obj = payload
             store.publish(topic, obj)
             continue
         name = payload
-        if phase == 1:
+        if phase == 4:
             live.pop(name, None)  # the next release builds a fresh instance, as the restart did
             continue
         if last_release.get(name) == t:

@@ -200,15 +200,16 @@ class Runtime:
     def close(self) -> None:
         for e in reversed(self._order):
             if e.worker is not None:
-                if e.worker.busy_since_s is not None:
-                    e.worker.abandon()
-                else:
-                    e.worker.retire()
+                self._take_down(e)
+        for e in self._order:
+            join = getattr(e.worker, "join", None)  # process workers end on a thread of their own
+            if join is not None:
+                join(2.0)
 
     # -- the loop --------------------------------------------------------------------------------------
 
     def tick(self, now_s: float) -> None:
-        """Supervise, then release what is due, in dependency order, each release waited for.
+        """Release what is due, in dependency order, each release waited for; then supervise.
 
         The wait makes a cycle's modules a chain (the controller sees this cycle's status, the link
         sends this cycle's request): in lockstep it lasts until the step is done (deterministic
@@ -216,13 +217,15 @@ class Runtime:
         chain goes on without it and the supervisor deals with it. A late module thus delays its
         consumers rather than letting them run on the previous cycle's data: the data flow stays
         causal, so a recording of a wall-time run replays exactly.
+
+        Supervision comes after the releases, so everything the supervisor publishes at `now_s`
+        (limits, stop requests, events, restarts) takes effect from the next releases on: a replay
+        can order it exactly.
         """
         if self.injector is not None:
             self.injector.tick(self, now_s)
         if self.lockstep and now_s < self._quiet_until_s:
             return  # lockstep fast path: nothing is due, running or failing (see _quiet_until)
-        self.supervise(now_s)
-        released = False
         for e in self._order:
             w = e.worker
             if w is None or e.state in ("restarting", "stopped", "failed"):
@@ -234,7 +237,6 @@ class Runtime:
             if not self._due(e, now_s):
                 continue
             if w.release(now_s):
-                released = True
                 if self.lockstep:
                     w.wait_done(self.lockstep_timeout_s)
                 elif not w.wait_done(e.spec.deadline_s):
@@ -242,8 +244,7 @@ class Runtime:
                     e.busy_mark = (time.perf_counter(), w.cpu_time_s(), w.busy_since_s or now_s)
                     w.wait_done(max(0.0, e.spec.hang_after_s - e.spec.deadline_s))
             e.pending = False
-        if released:
-            self.supervise(now_s)  # judge this tick's releases now, not a tick later
+        self.supervise(now_s)
         if now_s >= self._next_health_s:
             self._publish_health(now_s)
             self._next_health_s += self.health_period_s * max(

@@ -215,9 +215,7 @@ class ThreadWorker:
         """Stop a healthy (or failed) instance at its next release point."""
         self.ctx.fenced = True
         self._retiring = True
-        self._wake()
-        if self.thread is not threading.current_thread():
-            self.thread.join(timeout=max(0.1, 2 * self.spec.deadline_s))
+        self._wake()  # not joined: the instance is fenced, and the scheduler must not wait for it
 
     # -- worker thread ---------------------------------------------------------------------------
 

@@ -1,0 +1,99 @@
+"""Record a run to MCAP and replay it through the host's modules (issue 3, part 4).
+
+The committed reference (tests/data/replay/demo_10s.mcap, a 10 s SIL run of the demo, topics
+only) is openpilot's process replay for us: CI replays it with the current code and the outputs
+must match the recording. A change that alters what the controller or the perception computes
+fails here on purpose; if the change is intended, regenerate the reference with
+`python tests/data/replay/make_reference.py` and say so in the commit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bywire.hil.scenario import load_scenario
+from bywire.hil.sil import run_sil
+from bywire.host.modules.messages import CONTROL, ControlRequest
+from bywire.host.runtime.log_cli import log_info
+from bywire.host.runtime.mcap_log import McapRecorder, read_objects
+from bywire.host.runtime.replay import ReplayError, replay
+
+REFERENCE = Path(__file__).parent / "data" / "replay" / "demo_10s.mcap"
+
+
+def _bywire(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "bywire", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "sx.mcap"
+    scenario = dataclasses.replace(load_scenario("supervisor_exception"), duration_s=11.0)
+    run_sil(scenario, record=path)
+    return path
+
+
+def test_a_sil_recording_holds_frames_and_topics(recording: Path) -> None:
+    info = log_info(recording)
+    assert info["complete"] is True
+    topics = info["topics"]
+    assert topics["/control/request"]["rate_hz"] == pytest.approx(50.0, rel=0.01)
+    assert topics["/can/vehicle"]["count"] > 5000 and topics["/can/host_link"]["count"] > 1000
+    assert topics["/run/info"]["count"] == 1
+    events = [e.obj for e in read_objects(recording, topics=["/supervisor/events"])]
+    assert [(e.module, e.cause) for e in events][:1] == [("longitudinal", "exception")]
+
+
+def test_replay_matches_the_recording_and_is_deterministic(recording: Path) -> None:
+    first, second = replay(recording), replay(recording)
+    assert first.matches, json.dumps(first.to_json()["topics"], indent=1)
+    assert first.modules == ["odometry", "lead_tracker", "longitudinal"]
+    assert first.restarts == 1  # the supervisor's restart of the controller, re-enacted
+    assert first.outputs == second.outputs
+    assert first.topics[CONTROL].compared == first.topics[CONTROL].recorded > 500
+
+
+def test_a_tampered_output_is_found(recording: Path, tmp_path: Path) -> None:
+    tampered = tmp_path / "tampered.mcap"
+    with McapRecorder(tampered) as rec:
+        n = 0
+        for entry in read_objects(recording):
+            obj = entry.obj
+            if entry.topic.startswith("/can/"):
+                continue
+            if isinstance(obj, ControlRequest):
+                n += 1
+                if n == 300:
+                    obj = dataclasses.replace(obj, accel_mps2=obj.accel_mps2 + 0.01)
+            rec.record(entry.topic, obj)
+    proc = _bywire("log", "replay", str(tampered), "--check", "--json", str(tmp_path / "r.json"))
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "#299" in proc.stdout and "accel_mps2" in proc.stdout
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["matches"] is False and doc["topics"][CONTROL]["mismatched"] == 1
+    assert doc["topics"][CONTROL]["max_abs_diff"]["accel_mps2"] == pytest.approx(0.01)
+
+
+def test_a_recording_without_run_info_is_refused(tmp_path: Path) -> None:
+    bare = tmp_path / "bare.mcap"
+    with McapRecorder(bare) as rec:
+        rec.record(CONTROL, ControlRequest(0.0, 0.0, 0.0, 0, "none", 0.0, float("nan")))
+    with pytest.raises(ReplayError, match="no /run/info"):
+        replay(bare)
+    proc = _bywire("log", "replay", str(bare), "--check")
+    assert proc.returncode == 2 and "no /run/info" in proc.stderr
+
+
+def test_the_committed_reference_replays_with_todays_code() -> None:
+    if not REFERENCE.exists():
+        pytest.fail(f"{REFERENCE} is missing: run tests/data/replay/make_reference.py")
+    proc = _bywire("log", "replay", str(REFERENCE), "--check")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
