@@ -120,6 +120,8 @@ def test_module_faults_must_name_a_module_of_the_host(tmp_path: Path) -> None:
     )
     with pytest.raises(ScenarioError, match=r"faults\[0\].module: no module 'longitudinl'"):
         run_scenario(str(bad))
-    bad.write_text("name: bad\nduration_s: 1\nfaults:\n  - {at_s: 0.5, kind: module_kill, module: longitudinal}\n")
+    bad.write_text(
+        "name: bad\nduration_s: 1\nfaults:\n  - {at_s: 0.5, kind: module_kill, module: longitudinal}\n"
+    )
     with pytest.raises(ScenarioError, match="only a worker process can be killed"):
         run_scenario(str(bad))
