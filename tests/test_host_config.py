@@ -125,3 +125,24 @@ def test_module_faults_must_name_a_module_of_the_host(tmp_path: Path) -> None:
     )
     with pytest.raises(ScenarioError, match="only a worker process can be killed"):
         run_scenario(str(bad))
+
+
+def test_a_stop_policy_brings_the_car_to_a_controlled_stop_through_the_ecu(tmp_path: Path) -> None:
+    """Issue 3: the supervisor's third reaction, end to end in SIL: the controller fails, its policy
+    says stop, the ECU link sets the STOP flag, and the ECU stops and holds the car."""
+    from bywire.hil.run import run_scenario
+
+    host = tmp_path / "stop_host.yaml"
+    host.write_text("extends: default\nmodules:\n  - {name: longitudinal, policy: {action: stop}}\n")
+    scenario = tmp_path / "stop.yaml"
+    scenario.write_text(
+        "name: supervisor_stop\nduration_s: 16\nvehicle: {v0_mps: 0}\n"
+        "host: {mode: drive, config: stop_host.yaml, engage_at_s: 0.5, speed_profile: [[0, 10]]}\n"
+        "faults:\n  - {at_s: 6.0, kind: module_exception, module: longitudinal}\n"
+        "checks:\n  - {metric: state_at_fault, equals: ENGAGED}\n  - {metric: action, equals: stop}\n"
+        "  - {metric: final_speed_mps, max: 0.05}\n  - {metric: standstill_held, equals: true}\n"
+    )
+    doc = run_scenario(str(scenario))
+    assert doc["verdict"] == "pass", doc["checks"]
+    assert doc["metrics"]["final_state"] in ("SAFE_STOP", "PAUSED")
+    assert doc["metrics"]["detect_ms"] == 0.0
