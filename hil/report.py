@@ -95,6 +95,20 @@ def plot_run(
             rotation=90,
             va="bottom",
         )
+    for event in result.get("host_runtime", {}).get("events", []):
+        if event["cause"] in ("dependant", "recovered"):
+            continue
+        for a in axes:
+            a.axvline(event["t_rel_s"], color="m", alpha=0.35, lw=1, ls="--")
+        ax.annotate(
+            f"supervisor: {event['module']} {event['cause']} -> {event['action']}",
+            (event["t_rel_s"], max(int(s) for s in EcuState)),
+            fontsize=7,
+            color="m",
+            rotation=90,
+            va="top",
+            ha="right",
+        )
     ax.set_ylabel("ECU")
 
     if has_lead:

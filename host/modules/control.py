@@ -2,7 +2,7 @@
 
 The controller itself is the pure `host.longitudinal` (tested on its own); this module feeds it the
 mission's desired speed and stop line, the odometry and the lead track, and obeys the supervisor:
-a `SafetyLimit` caps the desired speed, and a lead track that has gone silent (the perception
+a `SafetyLimit` caps the desired speed (approached at `DEGRADE_DECEL_MPS2`, not as a step), and a lead track that has gone silent (the perception
 restarting, say) is not read as a free lane — the car does not accelerate blind
 (`PERCEPTION_STALE_S`).
 """
@@ -34,12 +34,22 @@ from bywire.host.runtime.topics import SAFETY_LIMIT, SafetyLimit
 from bywire.protocol.ecu_types import RequestFlags
 
 PERCEPTION_STALE_S = 0.1  # 5 periods without a lead track: the perception is down, not the lane free
+DEGRADE_DECEL_MPS2 = 1.5  # how fast a supervisor's speed limit is approached: firm, not an emergency
 
 
 class LongitudinalModule(Module):
     def __init__(self, params: dict[str, Any] | None = None) -> None:
         self.params = LongitudinalParams(**(params or {}))
         self.state = LongitudinalState()
+        self._limit_start: tuple[float, float] | None = None  # (limit's t_s, our speed when we saw it)
+
+    def _limited_speed(self, limit: SafetyLimit, now_s: float, speed_mps: float) -> float:
+        """The limit, reached from the speed we had at a steady `DEGRADE_DECEL_MPS2`: a step in the
+        desired speed would make the velocity controller brake at its limit (-c_v * dv)."""
+        if self._limit_start is None or self._limit_start[0] != limit.t_s:
+            self._limit_start = (limit.t_s, speed_mps)
+        seen_s, v0 = self._limit_start
+        return max(limit.max_speed_mps, v0 - DEGRADE_DECEL_MPS2 * max(0.0, now_s - seen_s))
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -50,7 +60,7 @@ class LongitudinalModule(Module):
         speed = odo.speed_mps if odo is not None else 0.0
         v_des = mission.v_des_mps if mission is not None else 0.0
         if limit is not None:
-            v_des = min(v_des, limit.max_speed_mps)
+            v_des = min(v_des, self._limited_speed(limit, now, speed))
         blind = track is None or now - track.t_s > PERCEPTION_STALE_S
         lead = (
             LeadObservation(gap_m=track.gap_m, v_lead_mps=track.v_lead_mps)
