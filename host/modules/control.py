@@ -2,9 +2,9 @@
 
 The controller itself is the pure `host.longitudinal` (tested on its own); this module feeds it the
 mission's desired speed and stop line, the odometry and the lead track, and obeys the supervisor:
-a `SafetyLimit` caps the desired speed (approached at `DEGRADE_DECEL_MPS2`, not as a step), and a lead track that has gone silent (the perception
-restarting, say) is not read as a free lane — the car does not accelerate blind
-(`PERCEPTION_STALE_S`).
+a `SafetyLimit` caps the desired speed (approached at `DEGRADE_DECEL_MPS2`, not as a step), and a
+lead track that has gone silent (the perception restarting, say) is not read as a free lane — the
+car does not accelerate blind (`PERCEPTION_STALE_S`).
 """
 
 from __future__ import annotations
