@@ -177,8 +177,8 @@ def _describe(exc: BaseException) -> str:
 class ProcessWorker:
     """The host's handle on one module instance in a child process (the `Worker` protocol).
 
-    Starting a process (spawn, the child's imports, the transport's shared-memory services) takes
-    hundreds of milliseconds: far longer than a tick. So the start and the end of a worker happen on
+    Starting a process (spawn, then the child's imports) takes hundreds of milliseconds, far longer
+    than a tick, and ending one waits for it. So the start and the end of a worker happen on
     a thread of their own, never on the scheduler's: the rest of the host keeps its rhythm while a
     perception process restarts. Until the child has answered the handshake the worker is not
     ready, and the scheduler does not release it.
@@ -219,10 +219,11 @@ class ProcessWorker:
     def _boot(self) -> None:
         from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber, new_endpoint
 
-        # The boot thread keeps a real-time priority (below the scheduler's) while it holds the GIL in
-        # the transport's set-up: on normal priority it would be preempted with the GIL in hand,
-        # and the scheduler would wait for it (seen: 100 ms without a heartbeat). Only the fork
-        # itself runs on normal priority, which the child inherits (see _drop_realtime).
+        # The boot thread runs just below the scheduler: whatever it does with the GIL in hand
+        # (pickling the child's arguments, the transport's set-up) it must not be preempted there by
+        # the simulator or the buses while the scheduler waits for the GIL (seen with an earlier
+        # transport: 100 ms without a heartbeat). Only the fork itself runs on normal priority,
+        # which the child inherits (see _drop_realtime).
         below_scheduler()
         rt_priority = 0
         try:
