@@ -67,11 +67,12 @@ class HostAgent:
             # only at the interpreter's switch interval (5 ms by default), once per blocking call.
             # 0.5 ms keeps the supervisor's own timing within its bounds while the culprit spins.
             sys.setswitchinterval(0.0005)
+        self.injector = ModuleFaultInjector(scenario, t0_s)
         self.runtime = Runtime(
             self.store,
             self.clock,
             lockstep=lockstep,
-            injector=ModuleFaultInjector(scenario, t0_s),
+            injector=self.injector,
             health_period_s=self.config.health_period_s,
             process_worker=process_worker,
         )
@@ -83,6 +84,16 @@ class HostAgent:
         build = KINDS[kind].build
         resources = self.resources
         return lambda: build(params, resources)
+
+    def prestart(self) -> bool:
+        """Start the worker processes before the run (see `Runtime.prestart`)."""
+        return self.runtime.prestart()
+
+    def set_t0(self, t0_s: float) -> None:
+        """The run's start instant, when it is known only after `prestart` (a HIL start handshake)."""
+        if self._started:
+            raise RuntimeError("t0 is fixed once the host runs")
+        self.t0_s = self.resources.t0_s = self.injector.t0_s = t0_s
 
     def _fault_active(self, kind: str, t: float) -> bool:
         return any(f.kind == kind and f.active(t) for f in self.scenario.faults)

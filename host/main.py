@@ -79,11 +79,10 @@ def main(args: argparse.Namespace) -> int:
     agent: HostAgent | None = None
     try:
         link = HostMaster(link_bus, clock)
-        t0 = wait_for_t0(args.t0)
         agent = HostAgent(
             scenario,
             link,
-            t0_s=t0,
+            t0_s=0.0,  # set below, once the runner has said when the run starts
             sensor_bus=sensor_bus,
             trace=trace,
             config=config,
@@ -91,6 +90,10 @@ def main(args: argparse.Namespace) -> int:
             lockstep=False,
             in_process_faults=False,
         )
+        if not agent.prestart():
+            print("host: a worker process did not start; the supervisor will keep trying", flush=True)
+        t0 = wait_for_t0(args.t0)
+        agent.set_t0(t0)
         port = args.live_view if args.live_view is not None else config.live_view_port
         if port is not None:
             try:

@@ -335,7 +335,7 @@ class ProcessWorker:
     def cpu_time_s(self) -> float | None:
         return None if self.pid is None else task_cpu_time_s(self.pid, self.pid)
 
-    def abandon(self) -> None:
+    def abandon(self, cancel: bool = False) -> None:
         """Kill the child (hung, or its instance given up) and close the streams, off the scheduler."""
         self._end(kill=True)
 

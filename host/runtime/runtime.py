@@ -96,6 +96,7 @@ class Entry:
     recovering_from: float | None = None  # onset of the failure a restart is recovering from
     seen_completed: int = 0  # completions already judged for slowness and silence
     reported: set[str] = field(default_factory=set)
+    cause: str = ""  # of the last failure handled
 
 
 def thread_worker(entry: Entry, store: ObjectStore, clock: Clock, injector: Injector | None) -> Worker:
@@ -161,13 +162,34 @@ class Runtime:
     def specs(self) -> list[ModuleSpec]:
         return [e.spec for e in self.entries.values()]
 
+    def prestart(self, timeout_s: float = START_TIMEOUT_S) -> bool:
+        """Start the process workers ahead of the run and wait until they are ready.
+
+        A worker process takes about a second to start (a Python interpreter importing numpy and
+        the project), on the same cores as everything else: done during the run, it would coincide
+        with the first seconds of driving. Their release grid still begins at `start`.
+        """
+        ready = True
+        for e in self.entries.values():
+            if e.spec.isolation == "process" and e.worker is None:
+                self._spawn(e, 0.0)
+        for e in self.entries.values():
+            wait = getattr(e.worker, "wait_started", None)
+            if e.spec.isolation == "process" and wait is not None:
+                ready = wait(timeout_s) and ready
+        return ready
+
     def start(self, now_s: float) -> None:
-        """Start every module's worker (in dependency order) and wait until each is ready."""
+        """Start every module's worker (in dependency order; in lockstep wait until each is ready)."""
         self._order = [self.entries[s.name] for s in dependency_order(self.specs)]
         self.start_s = now_s
         self._next_health_s = now_s
         for e in self._order:
-            self._spawn(e, now_s)
+            if e.worker is None:
+                self._spawn(e, now_s)
+            else:  # prestarted: on the run's grid and clock from now on
+                e.release_k = 0
+                e.started_s = now_s
 
     def _spawn(self, e: Entry, now_s: float) -> None:
         e.generation += 1
@@ -178,10 +200,8 @@ class Runtime:
         else:
             e.worker = thread_worker(e, self.store, self.clock, self.injector)
         # A restarted module starts on the period grid, not at a time of its own.
-        if e.spec.period_s is not None:
-            e.release_k = max(
-                e.release_k, math.ceil((now_s - (self.start_s or 0.0)) / e.spec.period_s - 1e-9)
-            )
+        if e.spec.period_s is not None and self.start_s is not None:
+            e.release_k = max(e.release_k, math.ceil((now_s - self.start_s) / e.spec.period_s - 1e-9))
         e.trigger_sub = self.store.subscribe(e.spec.trigger) if e.spec.trigger else None
         e.pending = False
         e.started_s = now_s
@@ -408,6 +428,7 @@ class Runtime:
             action = "restart"  # already degraded: a dead module must still come back
         self._event(e, now_s, cause, detail, action, onset_s)
         e.reported.add(cause)
+        e.cause = cause
         if action == "degrade":
             self._degrade(e, now_s, f"{e.spec.name}: {cause}")
             if cause in ("slow", "stale"):
@@ -425,6 +446,7 @@ class Runtime:
             if d.state in ("restarting", "stopped", "failed") or not d.spec.policy.restart_as_dependant:
                 continue
             self._event(d, now_s, "dependant", f"consumes outputs of {e.spec.name}", "restart", now_s)
+            d.cause = "dependant"
             self._schedule_restart(d, now_s, None, at_s=e.restart_at_s)
 
     def _schedule_restart(
@@ -452,7 +474,9 @@ class Runtime:
         if w is None:
             return
         if w.busy_since_s is not None:
-            w.abandon()
+            # Cancel only a spinning thread: one blocked in a call would get the exception when the
+            # call returns, at an arbitrary point inside whatever adapter it was using.
+            w.abandon(cancel=e.cause == "hang")
         else:
             w.retire()
 

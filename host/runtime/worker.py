@@ -13,10 +13,12 @@ that ended AnnieWAY's final was alive and silent):
 - `failure`: the exception or death that ended it.
 
 A thread cannot be killed. A hung thread is `abandon`ed: its context is fenced (nothing it still
-publishes reaches the store), and an asynchronous `ModuleCancelled` is raised in it, which ends a
-pure-Python busy loop at its next bytecode; a thread blocked in C (a deadlocked lock) stays blocked,
-costs no CPU, and is left behind as a daemon. Modules that may hang in native code belong in a
-process worker, which can be killed.
+publishes reaches the store); if it spins, an asynchronous `ModuleCancelled` is raised in it, which
+ends a pure-Python busy loop at its next bytecode. A blocked one (a deadlock, a call that never
+returns) is left behind as a daemon, costing no CPU, without an exception: it would be raised when
+the call returns, at an arbitrary point inside whatever adapter it was using. Fencing covers the
+store, not a zombie's side effects on an adapter it shares with its replacement: modules that may
+hang in native code belong in a process worker, which can be killed.
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ class Worker(Protocol):
 
     def ready(self) -> bool: ...
 
-    def abandon(self) -> None: ...
+    def abandon(self, cancel: bool = False) -> None: ...
 
     def retire(self) -> None: ...
 
@@ -200,12 +202,12 @@ class ThreadWorker:
     def cpu_time_s(self) -> float | None:
         return None if self._native_id is None else task_cpu_time_s("self", self._native_id)
 
-    def abandon(self) -> None:
-        """Give up on a hung instance: fence its outputs and try to cancel it (see the module doc)."""
+    def abandon(self, cancel: bool = False) -> None:
+        """Give up on a hung instance: fence its outputs; `cancel` a spinning one (see the module doc)."""
         self.ctx.fenced = True
         self._retiring = True
         ident = self.thread.ident
-        if ident is not None and self.thread.is_alive():
+        if cancel and ident is not None and self.thread.is_alive():
             ctypes.pythonapi.PyThreadState_SetAsyncExc(
                 ctypes.c_ulong(ident), ctypes.py_object(ModuleCancelled)
             )
