@@ -126,12 +126,18 @@ def test_exception_is_detected_at_once_and_the_module_restarted_with_its_dependa
 def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(fault: str, cause: str) -> None:
     policy = FailurePolicy(hang_after_s=0.06)
     rt, store = make_runtime({fault: 0.3}, policy)
+    before = set(threading.enumerate())
     run(rt, 0.6)
     ev = rt.events[0]
     assert (ev.module, ev.cause, ev.action) == ("a", cause, "restart"), ev.detail
     assert 60.0 < ev.detect_ms <= 62.0
     # the replacement runs; the zombie's outputs (if any) are fenced
     assert store.latest("/a").t_s == pytest.approx(0.6)
+    # a spinning zombie is cancelled (no CPU burnt for ever); a blocked one is left alone, since an
+    # exception raised into it would fire when its call returns, wherever that is
+    time.sleep(0.05)
+    zombies = [t for t in threading.enumerate() if t.name == "module-a#1" and t not in before]
+    assert len(zombies) == (1 if cause == "deadlock" else 0)
 
 
 def test_slow_module_is_detected_after_the_configured_misses_and_degraded() -> None:
