@@ -122,22 +122,32 @@ def test_exception_is_detected_at_once_and_the_module_restarted_with_its_dependa
     assert after[0].n == 1 and after[0].t_s == pytest.approx(0.52)
 
 
+@pytest.mark.parametrize("where", ["inline", "threads"])
 @pytest.mark.parametrize(("fault", "cause"), [("spin_at", "hang"), ("block_at", "deadlock")])
-def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(fault: str, cause: str) -> None:
+def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(
+    fault: str, cause: str, where: str
+) -> None:
+    """Inline: lockstep on the main thread (the watchdog interrupts the step); threads: the same
+    scheduler driven from another thread, so each module runs on a thread of its own."""
     policy = FailurePolicy(hang_after_s=0.06)
     rt, store = make_runtime({fault: 0.3}, policy)
     before = set(threading.enumerate())
-    run(rt, 0.6)
+    if where == "inline":
+        run(rt, 0.6)
+    else:
+        driver = threading.Thread(target=run, args=(rt, 0.6))
+        driver.start()
+        driver.join(30)
     ev = rt.events[0]
     assert (ev.module, ev.cause, ev.action) == ("a", cause, "restart"), ev.detail
     assert 60.0 < ev.detect_ms <= 62.0
     # the replacement runs; the zombie's outputs (if any) are fenced
     assert store.latest("/a").t_s == pytest.approx(0.6)
-    # a spinning zombie is cancelled (no CPU burnt for ever); a blocked one is left alone, since an
-    # exception raised into it would fire when its call returns, wherever that is
+    # a spinning zombie thread is cancelled (no CPU burnt for ever); a blocked one is left alone,
+    # since an exception raised into it would fire when its call returns, wherever that is
     time.sleep(0.05)
     zombies = [t for t in threading.enumerate() if t.name == "module-a#1" and t not in before]
-    assert len(zombies) == (1 if cause == "deadlock" else 0)
+    assert len(zombies) == (1 if (cause, where) == ("deadlock", "threads") else 0)
 
 
 def test_slow_module_is_detected_after_the_configured_misses_and_degraded() -> None:

@@ -43,6 +43,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bywire.clock import Clock
+from bywire.host.runtime.inline_worker import InlineWorker, inline_possible
 from bywire.host.runtime.module import ModuleSpec, dependants, dependency_order
 from bywire.host.runtime.store import ObjectStore, Subscription
 from bywire.host.runtime.topics import (
@@ -99,7 +100,15 @@ class Entry:
     cause: str = ""  # of the last failure handled
 
 
-def thread_worker(entry: Entry, store: ObjectStore, clock: Clock, injector: Injector | None) -> Worker:
+def thread_worker(
+    entry: Entry,
+    store: ObjectStore,
+    clock: Clock,
+    injector: Injector | None,
+    lockstep_timeout_s: float | None,
+) -> Worker:
+    """A worker in this process: stepped inline under a watchdog in lockstep on the main thread
+    (`inline_worker`: no thread switches), else on a thread of its own."""
     inject = None
     if injector is not None:
         name = entry.spec.name
@@ -107,6 +116,17 @@ def thread_worker(entry: Entry, store: ObjectStore, clock: Clock, injector: Inje
         def inject(ctx: Any) -> None:
             injector.before_step(name, ctx)
 
+    if lockstep_timeout_s is not None and inline_possible():
+        return InlineWorker(
+            entry.spec,
+            entry.factory,
+            store,
+            clock,
+            entry.params,
+            entry.generation,
+            lockstep_timeout_s,
+            inject,
+        )
     return ThreadWorker(entry.spec, entry.factory, store, clock, entry.params, entry.generation, inject)
 
 
@@ -198,7 +218,8 @@ class Runtime:
                 raise RuntimeError(f"module {e.spec.name} wants a process worker, and none is configured")
             e.worker = self._process_worker(e, self.store, self.clock, self.injector)
         else:
-            e.worker = thread_worker(e, self.store, self.clock, self.injector)
+            timeout = self.lockstep_timeout_s if self.lockstep else None
+            e.worker = thread_worker(e, self.store, self.clock, self.injector, timeout)
         # A restarted module starts on the period grid, not at a time of its own.
         if e.spec.period_s is not None and self.start_s is not None:
             e.release_k = max(e.release_k, math.ceil((now_s - self.start_s) / e.spec.period_s - 1e-9))
@@ -396,6 +417,12 @@ class Runtime:
         return None
 
     def _classify_hang(self, e: Entry, w: Worker, busy_s: float, late_s: float) -> tuple[str, str, float]:
+        measured = getattr(w, "hang_cpu_share", None)  # an inline worker sampled it before interrupting
+        if measured is not None:
+            where = f"release at {busy_s - (self.start_s or 0.0):.3f} s not done after {late_s * 1e3:.0f} ms"
+            if measured > SPIN_CPU_SHARE:
+                return "hang", f"{where}, spinning ({measured:.0%} of a CPU)", busy_s
+            return "deadlock", f"{where}, blocked ({measured:.0%} of a CPU): deadlock or endless wait", busy_s
         if e.busy_mark is None or time.perf_counter() - e.busy_mark[0] < MIN_SPIN_SAMPLE_S:
             # Lockstep ticks can pass faster than the CPU share can be judged: sample once more,
             # over a little real time (this happens once per hang, not per tick).

@@ -1,0 +1,211 @@
+"""The lockstep worker: a module stepped on the scheduler's own thread, with a watchdog for hangs.
+
+In lockstep (SIL, tests) the scheduler waits for every release anyway, so handing each step to a
+thread of its own buys nothing but two thread switches per release — measured, they made SIL 2.5x
+slower. An `InlineWorker` runs the step right in the scheduler's thread, which must be the main
+thread: Python delivers signals there, and a signal is the one thing that interrupts both a
+pure-Python endless loop and a blocking lock acquisition.
+
+The watchdog thread looks at the step in progress every `POLL_S`; a step still running after the
+lockstep wait (`timeout_s`, wall time) has its CPU share sampled over `SHARE_SAMPLE_S` (spinning or
+blocked) and is interrupted with SIGUSR2, whose handler raises `StepInterrupted` in the step. The
+worker then stays busy for ever from the release on, exactly as a hung thread would: the
+supervisor finds it at `hang_after_s` on the simulated clock and classifies it from the sampled
+share. What SIL cannot show this way is a hang's cost to the rest of the process (a spinning thread
+taking the GIL); wall-time runs use thread workers, where it is real.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from bywire.clock import Clock
+from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec
+from bywire.host.runtime.store import ObjectStore
+from bywire.host.runtime.worker import (
+    Failure,
+    ModuleFactory,
+    ReleaseStats,
+    complete_on_record,
+    task_cpu_time_s,
+)
+
+POLL_S = 0.05
+SHARE_SAMPLE_S = 0.005
+INTERRUPT_SIGNAL = signal.SIGUSR2
+
+
+class StepInterrupted(BaseException):
+    """Raised in a step the watchdog gave up on (a BaseException: `except Exception` cannot keep it)."""
+
+
+def inline_possible() -> bool:
+    """Signals reach only the main thread: elsewhere lockstep falls back to thread workers."""
+    return threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_kill")
+
+
+class _Watchdog:
+    """One per process: watches the step in progress on the main thread."""
+
+    _instance: _Watchdog | None = None
+
+    def __init__(self) -> None:
+        self.main_ident = threading.main_thread().ident
+        self.main_native = threading.get_native_id()
+        self.armed: tuple[float, float, InlineWorker] | None = None  # (wall start, timeout, worker)
+        self.firing = False
+        previous = signal.getsignal(INTERRUPT_SIGNAL)
+        if previous not in (signal.SIG_DFL, signal.SIG_IGN, None):
+            raise RuntimeError(f"signal {INTERRUPT_SIGNAL.name} is already in use; lockstep needs it")
+        signal.signal(INTERRUPT_SIGNAL, self._on_signal)
+        threading.Thread(target=self._watch, name="lockstep-watchdog", daemon=True).start()
+
+    @classmethod
+    def get(cls) -> _Watchdog:
+        if cls._instance is None:
+            cls._instance = cls()
+        return cls._instance
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self.firing and self.armed is not None:
+            self.firing = False
+            raise StepInterrupted
+
+    def _watch(self) -> None:
+        while True:
+            time.sleep(POLL_S)
+            armed = self.armed
+            if armed is None or time.perf_counter() - armed[0] < armed[1]:
+                continue
+            worker = armed[2]
+            wall0, cpu0 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
+            time.sleep(SHARE_SAMPLE_S)  # may take longer: a spinning step holds the GIL
+            wall1, cpu1 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
+            if self.armed is not armed:
+                continue  # it finished after all
+            if cpu0 is not None and cpu1 is not None and wall1 > wall0:
+                worker.hang_cpu_share = min(1.0, (cpu1 - cpu0) / (wall1 - wall0))
+            self.firing = True
+            assert self.main_ident is not None
+            signal.pthread_kill(self.main_ident, INTERRUPT_SIGNAL)
+
+
+class InlineWorker:
+    """One module instance stepped on the scheduler's (main) thread; the `Worker` protocol."""
+
+    def __init__(
+        self,
+        spec: ModuleSpec,
+        factory: ModuleFactory,
+        store: ObjectStore,
+        clock: Clock,
+        params: Mapping[str, Any],
+        generation: int,
+        timeout_s: float,
+        inject: Callable[[ModuleContext], None] | None = None,
+    ) -> None:
+        self.spec = spec
+        self.generation = generation
+        self.stats = ReleaseStats()
+        self.failure: Failure | None = None
+        self.busy_since_s: float | None = None
+        self.hang_cpu_share: float | None = None
+        self.ctx = ModuleContext(spec, store, params, generation)
+        self._clock = clock
+        self._timeout_s = timeout_s
+        self._inject = inject
+        self._watchdog = _Watchdog.get()
+        self._module: Module | None = None
+        try:
+            self._module = self._guarded(lambda: _start(factory, self.ctx))
+        except StepInterrupted:
+            self.failure = Failure("hang", "start did not return", clock.now())
+        except BaseException as exc:
+            self._fail(exc, "start")
+
+    def _guarded(self, fn: Callable[[], Any]) -> Any:
+        self._watchdog.armed = (time.perf_counter(), self._timeout_s, self)
+        try:
+            return fn()
+        finally:
+            self._watchdog.armed = None
+            self._watchdog.firing = False
+
+    def _fail(self, exc: BaseException, where: str) -> None:
+        frames = traceback.extract_tb(exc.__traceback__)
+        at = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+        self.failure = Failure("exception", f"{where}: {type(exc).__name__}: {exc}{at}", self._clock.now())
+
+    def release(self, now_s: float) -> bool:
+        if self.failure is not None or self._module is None:
+            return False
+        if self.busy_since_s is not None:
+            self.stats.skipped += 1
+            return False
+        module = self._module
+        self.busy_since_s = self._clock.now()
+        self.ctx.now_s = now_s
+        self.stats.releases += 1
+        self.stats.last_release_s = now_s
+        published_before = self.ctx.published
+        wall0 = time.perf_counter()
+
+        def step() -> None:
+            if self._inject is not None:
+                self._inject(self.ctx)
+            module.step(self.ctx)
+
+        try:
+            self._guarded(step)
+        except StepInterrupted:
+            self.ctx.fenced = True
+            return True  # busy from now on, like a thread that never came back
+        except BaseException as exc:
+            self._fail(exc, "step")
+            self.busy_since_s = None
+            return True
+        complete_on_record(
+            self.spec,
+            self.stats,
+            self.busy_since_s,
+            self._clock.now(),
+            time.perf_counter() - wall0,
+            self.ctx.published != published_before,
+        )
+        self.busy_since_s = None
+        return True
+
+    def wait_done(self, timeout_s: float) -> bool:
+        return self.busy_since_s is None
+
+    def ready(self) -> bool:
+        return True
+
+    def alive(self) -> bool:
+        return True
+
+    def cpu_time_s(self) -> float | None:
+        return None  # see hang_cpu_share: the step is no longer running when it is judged
+
+    def abandon(self, cancel: bool = False) -> None:
+        self.ctx.fenced = True  # the step was already interrupted; nothing runs any more
+
+    def retire(self) -> None:
+        self.ctx.fenced = True
+        if self._module is not None and self.failure is None and self.busy_since_s is None:
+            with contextlib.suppress(BaseException):  # a failing close of a retired instance changes nothing
+                self._guarded(self._module.close)
+
+
+def _start(factory: ModuleFactory, ctx: ModuleContext) -> Module:
+    module = factory()
+    module.start(ctx)
+    return module
