@@ -1,7 +1,8 @@
 """Workers: where one module instance runs, and what the supervisor can observe of it from outside.
 
-A worker runs one instance of one module: in a thread of the host process (the default) or in a
-process of its own (`ProcessWorker`, in `process_worker`). The scheduler `release`s it; the worker
+A worker runs one instance of one module: in a thread of the host process (the default on wall
+time), in a process of its own (`ProcessWorker`, in `process_worker`), or, in lockstep, right on
+the scheduler's thread under a watchdog (`InlineWorker`, in `inline_worker`). The scheduler `release`s it; the worker
 runs `step`, measures the execution time and records completions, deadline misses and the
 exception that ended it, if any. Everything the supervisor needs is readable without the worker's
 cooperation — a hung module cannot be asked whether it is hung (seed 000 section 12: the module
