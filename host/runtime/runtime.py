@@ -3,9 +3,10 @@
 Scheduling (seed 000 section 3's modules on KogMo-RTDB, with deadlines made explicit): a periodic
 module is released at `start + k * period`, a triggered one on every new object of its trigger
 topic; each release runs on the module's worker and is measured (execution time, completion,
-deadline miss, overrun when the previous release is still running). In lockstep (SIL, replay) the
-scheduler releases the modules in dependency order and waits for each, so a run is deterministic;
-on wall time (HIL, the car) the releases run concurrently.
+deadline miss, overrun when the previous release is still running). The modules due at one tick
+form a chain, released in dependency order, each waited for: in lockstep (SIL, replay) until it is
+done, so a run is deterministic; on wall time (HIL, the car) until it is done or hung, so a late
+module delays its consumers instead of letting them run on old data (see `tick`).
 
 Supervision — the watchdog AnnieWAY lacked (seed 000 section 12: a module hung after an exception,
 its process stayed alive, and a watchdog that only checked that processes existed never noticed).
