@@ -21,9 +21,7 @@ import contextlib
 import signal
 import threading
 import time
-import traceback
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -33,7 +31,7 @@ from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.worker import (
     Failure,
     ModuleFactory,
-    ReleaseStats,
+    WorkerState,
     complete_on_record,
     task_cpu_time_s,
 )
@@ -98,7 +96,7 @@ class _Watchdog:
             signal.pthread_kill(self.main_ident, INTERRUPT_SIGNAL)
 
 
-class InlineWorker:
+class InlineWorker(WorkerState):
     """One module instance stepped on the scheduler's (main) thread; the `Worker` protocol."""
 
     def __init__(
@@ -112,14 +110,9 @@ class InlineWorker:
         timeout_s: float,
         inject: Callable[[ModuleContext], None] | None = None,
     ) -> None:
-        self.spec = spec
-        self.generation = generation
-        self.stats = ReleaseStats()
-        self.failure: Failure | None = None
-        self.busy_since_s: float | None = None
+        super().__init__(spec, generation, clock)
         self.hang_cpu_share: float | None = None
         self.ctx = ModuleContext(spec, store, params, generation)
-        self._clock = clock
         self._timeout_s = timeout_s
         self._inject = inject
         self._watchdog = _Watchdog.get()
@@ -129,7 +122,7 @@ class InlineWorker:
         except StepInterrupted:
             self.failure = Failure("hang", "start did not return", clock.now())
         except BaseException as exc:
-            self._fail(exc, "start")
+            self._fail("exception", exc, "start")
 
     def _guarded(self, fn: Callable[[], Any]) -> Any:
         self._watchdog.armed = (time.perf_counter(), self._timeout_s, self)
@@ -138,11 +131,6 @@ class InlineWorker:
         finally:
             self._watchdog.armed = None
             self._watchdog.firing = False
-
-    def _fail(self, exc: BaseException, where: str) -> None:
-        frames = traceback.extract_tb(exc.__traceback__)
-        at = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
-        self.failure = Failure("exception", f"{where}: {type(exc).__name__}: {exc}{at}", self._clock.now())
 
     def release(self, now_s: float) -> bool:
         if self.failure is not None or self._module is None:
@@ -169,7 +157,7 @@ class InlineWorker:
             self.ctx.fenced = True
             return True  # busy from now on, like a thread that never came back
         except BaseException as exc:
-            self._fail(exc, "step")
+            self._fail("exception", exc, "step")
             self.busy_since_s = None
             return True
         complete_on_record(

@@ -27,7 +27,6 @@ import multiprocessing as mp
 import os
 import threading
 import time
-import traceback
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,9 +36,10 @@ from bywire.host.runtime.module import ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.worker import (
     Failure,
-    ReleaseStats,
+    WorkerState,
     below_scheduler,
     complete_on_record,
+    describe_exception,
     task_cpu_time_s,
 )
 
@@ -123,7 +123,9 @@ def _child_main(
             module = KINDS[kind].build(params, None)
             module.start(ctx)
         except Exception as exc:
-            pub.send(status_topic, WorkerSignal(0.0, "error", pid=pid, error=f"start: {_describe(exc)}"))
+            pub.send(
+                status_topic, WorkerSignal(0.0, "error", pid=pid, error=f"start: {describe_exception(exc)}")
+            )
             time.sleep(0.1)  # let the report leave before the process ends
             return
         # The module's step runs at the priority of the host's module threads.
@@ -148,7 +150,7 @@ def _child_main(
             except Exception as exc:
                 pub.send(
                     status_topic,
-                    WorkerSignal(msg.t_s, "error", msg.seq, pid, error=f"step: {_describe(exc)}"),
+                    WorkerSignal(msg.t_s, "error", msg.seq, pid, error=f"step: {describe_exception(exc)}"),
                 )
                 time.sleep(0.1)
                 return
@@ -168,13 +170,7 @@ def _child_main(
         pub.close()
 
 
-def _describe(exc: BaseException) -> str:
-    frames = traceback.extract_tb(exc.__traceback__)
-    at = f" at {os.path.basename(frames[-1].filename)}:{frames[-1].lineno}" if frames else ""
-    return f"{type(exc).__name__}: {exc}{at}"
-
-
-class ProcessWorker:
+class ProcessWorker(WorkerState):
     """The host's handle on one module instance in a child process (the `Worker` protocol).
 
     Starting a process (spawn, then the child's imports) takes hundreds of milliseconds, far longer
@@ -193,15 +189,10 @@ class ProcessWorker:
         clock: Clock,
         generation: int,
     ) -> None:
-        self.spec = spec
-        self.generation = generation
-        self.stats = ReleaseStats()
-        self.failure: Failure | None = None
-        self.busy_since_s: float | None = None
+        super().__init__(spec, generation, clock)
         self.pid: int | None = None
         self.process: Any = None
         self._store = store
-        self._clock = clock
         self._kind = kind
         self._params = {k: v for k, v in params.items() if k != "kind"}
         self._ctl_topic, status_topic = _topics(spec.name, generation)
@@ -249,7 +240,7 @@ class ProcessWorker:
             self.pid = self.process.pid
         except Exception as exc:  # a worker that cannot start is a crashed worker
             self.failure = Failure(
-                "crashed", f"could not start the worker process: {_describe(exc)}", self._clock.now()
+                "crashed", f"could not start the worker process: {describe_exception(exc)}", self._clock.now()
             )
         finally:
             self._booted.set()

@@ -2,11 +2,11 @@
 
 A worker runs one instance of one module: in a thread of the host process (the default on wall
 time), in a process of its own (`ProcessWorker`, in `process_worker`), or, in lockstep, right on
-the scheduler's thread under a watchdog (`InlineWorker`, in `inline_worker`). The scheduler `release`s it; the worker
-runs `step`, measures the execution time and records completions, deadline misses and the
-exception that ended it, if any. Everything the supervisor needs is readable without the worker's
-cooperation — a hung module cannot be asked whether it is hung (seed 000 section 12: the module
-that ended AnnieWAY's final was alive and silent):
+the scheduler's thread under a watchdog (`InlineWorker`, in `inline_worker`). The scheduler
+`release`s it; the worker runs `step`, measures the execution time and records completions,
+deadline misses and the exception that ended it, if any. Everything the supervisor needs is
+readable without the worker's cooperation — a hung module cannot be asked whether it is hung
+(seed 000 section 12: the module that ended AnnieWAY's final was alive and silent):
 
 - `busy_since_s`: the release in progress, on the runtime clock (a hang is a release that never ends);
 - `cpu_time_s()`: the worker's own CPU time from /proc, which tells a spinning loop (CPU advances)
@@ -130,7 +130,29 @@ def below_scheduler() -> None:
         pass  # not Linux, or not allowed: modules stay where they are
 
 
-class ThreadWorker:
+def describe_exception(exc: BaseException) -> str:
+    """`Type: message at file:line` of the innermost frame: what an event's detail says."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    at = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+    return f"{type(exc).__name__}: {exc}{at}"
+
+
+class WorkerState:
+    """What every worker keeps for the supervisor to read (the data of the `Worker` protocol)."""
+
+    def __init__(self, spec: ModuleSpec, generation: int, clock: Clock) -> None:
+        self.spec = spec
+        self.generation = generation
+        self.stats = ReleaseStats()
+        self.failure: Failure | None = None
+        self.busy_since_s: float | None = None
+        self._clock = clock
+
+    def _fail(self, cause: str, exc: BaseException, where: str) -> None:
+        self.failure = Failure(cause, f"{where}: {describe_exception(exc)}", self._clock.now())
+
+
+class ThreadWorker(WorkerState):
     """One module instance on a daemon thread of the host process."""
 
     def __init__(
@@ -143,14 +165,9 @@ class ThreadWorker:
         generation: int,
         inject: Callable[[ModuleContext], None] | None = None,
     ) -> None:
-        self.spec = spec
-        self.generation = generation
-        self.stats = ReleaseStats()
-        self.failure: Failure | None = None
-        self.busy_since_s: float | None = None
+        super().__init__(spec, generation, clock)
         self.ctx = ModuleContext(spec, store, params, generation)
         self._factory = factory
-        self._clock = clock
         self._inject = inject
         # Raw locks as binary semaphores: the cheapest hand-over CPython has (an Event allocates a
         # lock per wait), and lockstep SIL hands over every release of every module.
@@ -221,11 +238,6 @@ class ThreadWorker:
         self._wake()  # not joined: the instance is fenced, and the scheduler must not wait for it
 
     # -- worker thread ---------------------------------------------------------------------------
-
-    def _fail(self, cause: str, exc: BaseException, where: str) -> None:
-        frames = traceback.extract_tb(exc.__traceback__)
-        at = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
-        self.failure = Failure(cause, f"{where}: {type(exc).__name__}: {exc}{at}", self._clock.now())
 
     def _run(self) -> None:
         self._native_id = threading.get_native_id()
