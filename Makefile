@@ -31,6 +31,7 @@ typecheck: setup
 
 bench: setup
 	$(BIN)/python benchmarks/run.py
+	$(BIN)/bywire bench runtime
 
 lint: setup
 	$(BIN)/ruff check .
