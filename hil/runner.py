@@ -290,9 +290,11 @@ def run_hil(
             child.close()
         result_extra["exit_codes"] = codes
     if record is not None and is_mcap(record):
-        result_extra["recording"] = merge_recordings(
-            record, [run_dir / HOST_TOPICS_PART, run_dir / FRAMES_PART]
-        )
+        parts = [run_dir / HOST_TOPICS_PART, run_dir / FRAMES_PART]
+        result_extra["recording"] = merge_recordings(record, parts)
+        if all(state == "ok" for state in result_extra["recording"]["parts"].values()):
+            for part in parts:
+                part.unlink()  # all in `record` now; a part that had trouble stays for a post-mortem
     runtime_path = run_dir / "host_runtime.json"
     if runtime_path.exists():
         result_extra["host_runtime"] = json.loads(runtime_path.read_text(encoding="utf-8"))
