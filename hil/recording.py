@@ -82,12 +82,15 @@ def wall_run_clock(msg: can.Message) -> float:
     return rx_time_s(msg, time.monotonic())
 
 
-def _stream(path: Path) -> Iterator[RawMessage]:
+def _stream(path: Path, report: dict[str, str]) -> Iterator[RawMessage]:
     reader = McapLogReader(path)
     try:
         yield from reader.messages()
-    except LogError:
-        return  # damage after a readable prefix: keep what was readable (the reader said where)
+    except LogError as exc:
+        report[path.name] = f"damaged, readable prefix kept: {exc}"
+        return
+    if not reader.complete:
+        report[path.name] = f"not closed cleanly (a crash?): {reader.end_note}"
 
 
 def merge_recordings(out: Path, parts: Sequence[Path]) -> dict[str, Any]:
@@ -104,7 +107,7 @@ def merge_recordings(out: Path, parts: Sequence[Path]) -> dict[str, Any]:
             report["parts"][p.name] = "missing"
             continue
         report["parts"][p.name] = "ok"
-        streams.append(_stream(p))
+        streams.append(_stream(p, report["parts"]))
     with out.open("wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD, enable_data_crcs=True)
         writer.start(profile="", library="bywire merge")

@@ -21,7 +21,7 @@ from bywire.hil.scenario import load_scenario
 from bywire.hil.sil import run_sil
 from bywire.host.modules.messages import CONTROL, ControlRequest
 from bywire.host.runtime.log_cli import log_info
-from bywire.host.runtime.mcap_log import McapRecorder, read_objects
+from bywire.host.runtime.mcap_log import McapRecorder, read_frames, read_objects
 from bywire.host.runtime.replay import ReplayError, replay
 
 REFERENCE = Path(__file__).parent / "data" / "replay" / "demo_10s.mcap"
@@ -97,3 +97,27 @@ def test_the_committed_reference_replays_with_todays_code() -> None:
         pytest.fail(f"{REFERENCE} is missing: run tests/data/replay/make_reference.py")
     proc = _bywire("log", "replay", str(REFERENCE), "--check")
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_merging_keeps_what_a_crashed_part_holds(recording: Path, tmp_path: Path) -> None:
+    """HIL: the host's part of a recording may end in a crash; the merge keeps its readable prefix
+    and says so, next to the runner's complete part."""
+    from bywire.hil.recording import merge_recordings
+
+    host_part, frames_part = tmp_path / "host.mcap", tmp_path / "frames.mcap"
+    with McapRecorder(host_part, chunk_size=4096) as rec:
+        for entry in read_objects(recording):
+            if not entry.topic.startswith("/can/"):
+                rec.record(entry.topic, entry.obj)
+    with McapRecorder(frames_part) as rec:
+        for frame in read_frames(recording, bus="vehicle"):
+            rec.record_frame("vehicle", frame)
+    cut = tmp_path / "host_cut.mcap"
+    cut.write_bytes(host_part.read_bytes()[: host_part.stat().st_size // 2])  # killed half-way
+    report = merge_recordings(tmp_path / "merged.mcap", [cut, frames_part, tmp_path / "absent.mcap"])
+    assert report["parts"]["frames.mcap"] == "ok" and report["parts"]["absent.mcap"] == "missing"
+    assert report["parts"]["host_cut.mcap"].startswith(("not closed cleanly", "damaged"))
+    info = log_info(tmp_path / "merged.mcap")
+    assert info["complete"] is True
+    assert info["topics"]["/can/vehicle"]["count"] > 5000
+    assert 0 < info["topics"]["/control/request"]["count"] < 550
