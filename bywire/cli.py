@@ -88,6 +88,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     log_cli.add_arguments(log.add_subparsers(dest="log_command", required=True, metavar="COMMAND"))
 
+    platoon = sub.add_parser("platoon", help="platoon tools (issue 4)").add_subparsers(
+        dest="platoon_command", required=True, metavar="COMMAND"
+    )
+    from bywire.host.platoon import platoon_cli
+
+    platoon_cli.add_arguments(
+        platoon.add_parser(
+            "string-stability",
+            help="string stability of a recorded platoon (OpenACC or CARMA CSV): worst spectral ratio",
+        )
+    )
+
     bus = sub.add_parser("bus", help="virtual CAN buses").add_subparsers(dest="bus_command", required=True)
     serve = bus.add_parser("serve", help="serve a python-can virtual bus to other processes on loopback")
     serve.add_argument("--port", type=int, default=54701)
@@ -183,6 +195,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from bywire.hil.bench import bench_ecu
 
             return bench_ecu(args.seconds, args.json, args.report)
+        if args.command == "platoon":
+            from bywire.host.platoon import platoon_cli
+
+            return platoon_cli.main(args)
         if args.command == "log":
             from bywire.host.runtime import log_cli
 
