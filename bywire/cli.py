@@ -83,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--seconds", type=float, default=None, help="scale the measuring time (default ~30 s)")
     br.add_argument("--json", type=Path, help="write the results as JSON")
 
+    bp = bench.add_parser("platoon", help="the follow-control QP and the 10-vehicle platoon step (issue 4)")
+    bp.add_argument("--seconds", type=float, default=None, help="scale the measuring time")
+    bp.add_argument("--json", type=Path, help="write the results as JSON")
+
     log = sub.add_parser("log", help="recordings (MCAP): info, plot, replay")
     from bywire.host.runtime import log_cli
 
@@ -188,6 +192,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _cmd_hil_run(args, "demo", "hil")
             return _cmd_hil_run(args, args.scenario, "sil")
         if args.command == "bench":
+            if args.bench_command == "platoon":
+                from bywire.host.platoon import bench as platoon_bench
+
+                return platoon_bench.main(args)
             if args.bench_command == "runtime":
                 from bywire.host.runtime import bench as runtime_bench
 
