@@ -14,9 +14,10 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bywire.host.platoon.string_stability import PlatoonCsvError, Result, load_platoon_csv, string_stability
+if TYPE_CHECKING:  # the estimator (scipy.signal: a second to import) loads only when a command runs
+    from bywire.host.platoon.string_stability import Result
 
 # Below this magnitude-squared coherence the follower's motion at the peak is mostly not explained by its
 # predecessor's (noise, own driver input), so the printed ratio is flagged as unreliable.
@@ -86,6 +87,8 @@ def _plot(result: Result, title: str, path: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from bywire.host.platoon.string_stability import PlatoonCsvError, load_platoon_csv, string_stability
+
     try:
         platoon = load_platoon_csv(args.csv)
         band = (float(args.band[0]), float(args.band[1])) if args.band else None
