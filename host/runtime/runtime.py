@@ -33,15 +33,14 @@ watchdog stops the car (issue 2), whatever happened to this supervisor.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
-
-import numpy as np
 
 from bywire.clock import Clock
 from bywire.host.runtime.inline_worker import InlineWorker, inline_possible
@@ -64,6 +63,24 @@ log = logging.getLogger("bywire.supervisor")
 MIN_SPIN_SAMPLE_S = 0.005  # real time over which a hung worker's CPU use is judged
 SPIN_CPU_SHARE = 0.2  # a hung worker using more than this share of a CPU is spinning, not blocked
 START_TIMEOUT_S = 30.0  # wall time a worker may take to start (a process worker imports numpy...)
+HEALTH_WINDOW = 100  # releases the health topic's execution-time statistics cover (2 s at 50 Hz)
+
+
+def exec_stats_ms(exec_s: Iterable[float], window: int | None) -> tuple[float, float, float]:
+    """(p50, p99, max) in ms of the newest `window` execution times (all with None); zeros if none.
+
+    Percentiles by the nearest-rank method on the sorted window (no interpolation).
+    """
+    samples = list(exec_s)
+    if window is not None:
+        samples = samples[-window:]
+    if not samples:
+        return 0.0, 0.0, 0.0
+    samples.sort()
+    n = len(samples)
+    p50 = samples[(n - 1) // 2] if n % 2 else 0.5 * (samples[n // 2 - 1] + samples[n // 2])
+    p99 = samples[min(n - 1, math.ceil(0.99 * n) - 1)]
+    return round(p50 * 1e3, 4), round(p99 * 1e3, 4), round(samples[-1] * 1e3, 4)
 
 
 class Injector(Protocol):
@@ -403,16 +420,18 @@ class Runtime:
                 f"{w.stats.silent} releases in a row published none of {', '.join(spec.outputs)}",
                 w.stats.silent_since_s if w.stats.silent_since_s is not None else now_s,
             )
-        if "slow" not in e.reported:
-            recent = list(w.stats.missed)[-spec.policy.slow_window :]
+        # Judged after every completed release: look only at the window, and only once there
+        # have been enough misses in all for the window to hold them.
+        if "slow" not in e.reported and w.stats.misses >= spec.policy.slow_misses:
+            recent = list(itertools.islice(reversed(w.stats.missed), spec.policy.slow_window))
             if sum(recent) >= spec.policy.slow_misses:
                 n = spec.policy.slow_misses
                 onset = w.stats.miss_times_s[-n]
-                exec_ms = 1e3 * np.array(w.stats.exec_s)[-len(recent) :]
+                exec_max_ms = 1e3 * max(itertools.islice(reversed(w.stats.exec_s), len(recent)))
                 return (
                     "slow",
                     f"{sum(recent)} of the last {len(recent)} releases missed the "
-                    f"{spec.deadline_s * 1e3:.0f} ms deadline (exec max {exec_ms.max():.1f} ms)",
+                    f"{spec.deadline_s * 1e3:.0f} ms deadline (exec max {exec_max_ms:.1f} ms)",
                     onset,
                 )
         return None
@@ -550,11 +569,17 @@ class Runtime:
 
     # -- health ------------------------------------------------------------------------------------
 
-    def module_health(self, e: Entry, now_s: float) -> ModuleHealth:
+    def module_health(self, e: Entry, now_s: float, window: int | None = HEALTH_WINDOW) -> ModuleHealth:
+        """`window`: the execution-time statistics cover the newest `window` releases (None: all kept).
+
+        The periodic health topic looks at a recent window with plain `sorted`: it is published ten
+        times a second for every module, and numpy over the whole history cost a tenth of a lockstep
+        run. The run's summary covers everything kept.
+        """
         w = e.worker
-        exec_ms = 1e3 * np.array(w.stats.exec_s) if w is not None and w.stats.exec_s else np.zeros(1)
-        ages = [now_s - o.t_s for t in e.spec.outputs if (o := self.store.latest(t)) is not None]
         s = w.stats if w is not None else None
+        exec_p50, exec_p99, exec_max = exec_stats_ms(s.exec_s if s is not None else (), window)
+        ages = [now_s - o.t_s for t in e.spec.outputs if (o := self.store.latest(t)) is not None]
         return ModuleHealth(
             t_s=now_s,
             module=e.spec.name,
@@ -565,9 +590,9 @@ class Runtime:
             misses=s.misses if s else 0,
             skipped=s.skipped if s else 0,
             restarts=e.restarts,
-            exec_ms_p50=round(float(np.median(exec_ms)), 4),
-            exec_ms_p99=round(float(np.percentile(exec_ms, 99)), 4),
-            exec_ms_max=round(float(exec_ms.max()), 4),
+            exec_ms_p50=exec_p50,
+            exec_ms_p99=exec_p99,
+            exec_ms_max=exec_max,
             output_age_ms=round(max(ages) * 1e3, 3) if ages else -1.0,
         )
 
@@ -581,7 +606,9 @@ class Runtime:
         return {
             "modules": {
                 e.spec.name: {
-                    k: v for k, v in vars(self.module_health(e, now)).items() if k not in ("t_s", "module")
+                    k: v
+                    for k, v in vars(self.module_health(e, now, window=None)).items()
+                    if k not in ("t_s", "module")
                 }
                 for e in self._order
             },
