@@ -37,6 +37,7 @@ from bywire.vehicle_models.fmu_vehicle import FmuVehicle, VehicleInputs
 GATEWAY_PERIOD_S = 0.010  # GW_* frames, GenMsgCycleTime 10 ms in vehicle.dbc
 SLOW_PERIOD_S = 0.050  # ESTOP_Radio and RADAR_Target, 50 ms
 TRACE_PERIOD_S = 0.010
+MAX_HOLD_S = 0.010  # the model is advanced at least this often, even without an event
 RADAR_MAX_RANGE_M = 120.0  # a series ACC radar's useful range for a car target
 PARK_BRAKE_EQUIV_BAR = 60.0  # the electric park brake, expressed as service-brake pressure for the model
 DRIVER_BRAKE_BAR_PER_PCT = 1.2  # 100 % pedal ~ 120 bar: a full driver stop
@@ -89,6 +90,13 @@ class Plant:
             self._faults[fault.kind] = (*self._faults.get(fault.kind, ()), fault)
         self._cmd_monitor = self.rx.monitor("DBW_Command")
         self._frame_faults = any(k in self._faults for k in ("drop", "corrupt", "repeat", "delay"))
+        self._actuator_delay_s = scenario.actuator_delay_ms / 1000.0
+        # Instants (scenario time) at which a fault starts or ends: the model is advanced there.
+        starts = {f.at_s for f in scenario.faults}
+        ends = {f.at_s + f.duration_s for f in scenario.faults if f.duration_s}
+        self._fault_edges_s = sorted(starts | ends)
+        self._edge_i = 0
+        self._next_event_s = t0_s
 
     # -- scenario state at time t ------------------------------------------------------------------
 
@@ -115,14 +123,83 @@ class Plant:
         fault = self._active("driver_steer", t)
         return fault.torque_nm if fault else 0.0
 
-    # -- one millisecond ---------------------------------------------------------------------------
+    # -- stepping -----------------------------------------------------------------------------------
 
     def step(self, now_s: float) -> None:
-        t = now_s - self.t0_s
-        dt = 0.001 if self._last_step_s is None else max(0.0, now_s - self._last_step_s)
-        self._last_step_s = now_s
+        """Called every millisecond (the HIL process on the wall clock, SIL in lockstep).
+
+        The vehicle model is advanced only at events: a command arriving or becoming due, a report
+        frame or trace sample due, a delayed frame due, a command timing out, a fault starting or
+        ending, and at least every `MAX_HOLD_S`. Between events its inputs are constant (the gateway
+        holds the last command), so one longer FMU step is the same physics as many short ones (the
+        FMU sub-steps internally at its own `step_s`), and most milliseconds cost only a bus poll.
+        """
         self._receive(now_s)
+        if now_s >= self._next_event_s:
+            self._event(now_s)
+
+    def _event(self, now_s: float) -> None:
+        t = now_s - self.t0_s
+        dt = now_s - self._last_step_s if self._last_step_s is not None else 0.0
+        if dt > 0.0:
+            # The last interval ran on the actuation decided at its start: a command takes effect
+            # after it arrived (and after the actuator delay), never before.
+            t_prev = self._last_step_s - self.t0_s if self._last_step_s is not None else t
+            act = self._applied
+            self.outputs = self.vehicle.step(
+                dt,
+                VehicleInputs(
+                    throttle_pct=act.throttle_pct,
+                    brake_bar=act.brake_bar,
+                    steer_angle_rad=act.steer_rad,
+                    grade_pct=ramp_value(self.scenario.grade_pct, t_prev),
+                    wind_mps=ramp_value(self.scenario.wind_mps, t_prev),
+                ),
+            )
+            self._advance_lead(t_prev, t)
+        if self._last_step_s is None or now_s > self._last_step_s:
+            self._last_step_s = now_s
+        while self._pending and self._pending[0][0] <= now_s:
+            self._cmd = self._pending.popleft()[1]
         cmd_fresh = self._cmd is not None and not self._cmd_monitor.timed_out(now_s)
+        self._applied = self._actuation(t, cmd_fresh)
+        if now_s >= self._next_gateway_s:
+            self._next_gateway_s += GATEWAY_PERIOD_S
+            if self._next_gateway_s < now_s:  # a stalled HIL process re-phases instead of bursting
+                self._next_gateway_s = now_s + GATEWAY_PERIOD_S
+            self._send_gateway(now_s, t)
+        if now_s >= self._next_slow_s:
+            self._next_slow_s += SLOW_PERIOD_S
+            if self._next_slow_s < now_s:
+                self._next_slow_s = now_s + SLOW_PERIOD_S
+            self._send_slow(now_s, t)
+        self._flush_delayed(now_s)
+        if now_s >= self._next_trace_s:
+            self._next_trace_s += TRACE_PERIOD_S
+            if self._next_trace_s < now_s:
+                self._next_trace_s = now_s + TRACE_PERIOD_S
+            self._record(t, cmd_fresh)
+        self._next_event_s = self._plan_next_event(now_s, cmd_fresh)
+
+    def _plan_next_event(self, now_s: float, cmd_fresh: bool) -> float:
+        nxt = min(self._next_gateway_s, self._next_slow_s, self._next_trace_s, now_s + MAX_HOLD_S)
+        if self._pending:
+            nxt = min(nxt, self._pending[0][0])
+        if self._delayed:
+            nxt = min(nxt, self._delayed[0][0])
+        if cmd_fresh:
+            last = self._cmd_monitor.state.last_time_s
+            if last is not None:  # the instant the gateway stops trusting the command
+                nxt = min(nxt, last + self._cmd_monitor.timeout_s + 1e-6)
+        edges = self._fault_edges_s
+        while self._edge_i < len(edges) and edges[self._edge_i] <= now_s - self.t0_s:
+            self._edge_i += 1
+        if self._edge_i < len(edges):
+            nxt = min(nxt, self.t0_s + edges[self._edge_i])
+        return nxt
+
+    def _actuation(self, t: float, cmd_fresh: bool) -> _Actuation:
+        """What the gateway applies from now until the next event."""
         act = _Actuation()
         cmd = self._cmd
         if cmd is not None and cmd_fresh:
@@ -143,53 +220,28 @@ class Plant:
             act.throttle_pct = 0.0
         if driver_pct > 0.0:
             act.throttle_pct = 0.0  # brake override: a driver on the brake always wins over throttle
-        self._applied = act
-        if dt > 0.0:
-            self.outputs = self.vehicle.step(
-                dt,
-                VehicleInputs(
-                    throttle_pct=act.throttle_pct,
-                    brake_bar=act.brake_bar,
-                    steer_angle_rad=act.steer_rad,
-                    grade_pct=ramp_value(self.scenario.grade_pct, t),
-                    wind_mps=ramp_value(self.scenario.wind_mps, t),
-                ),
-            )
-            self._advance_lead(t, dt)
-        if now_s >= self._next_gateway_s:
-            self._next_gateway_s += GATEWAY_PERIOD_S
-            if self._next_gateway_s < now_s:  # a stalled HIL process re-phases instead of bursting
-                self._next_gateway_s = now_s + GATEWAY_PERIOD_S
-            self._send_gateway(now_s, t)
-        if now_s >= self._next_slow_s:
-            self._next_slow_s += SLOW_PERIOD_S
-            if self._next_slow_s < now_s:
-                self._next_slow_s = now_s + SLOW_PERIOD_S
-            self._send_slow(now_s, t)
-        self._flush_delayed(now_s)
-        if now_s >= self._next_trace_s:
-            self._next_trace_s += TRACE_PERIOD_S
-            if self._next_trace_s < now_s:
-                self._next_trace_s = now_s + TRACE_PERIOD_S
-            self._record(t, cmd_fresh)
+        return act
 
     def _receive(self, now_s: float) -> None:
-        delay_s = self.scenario.actuator_delay_ms / 1000.0
+        bus = self.bus
         while True:
-            msg = self.bus.recv(timeout=0)
+            msg = bus.recv(timeout=0)
             if msg is None:
-                break
+                return
             frame = self.rx.feed(msg, now_s, rx_time_s(msg, now_s))
             if isinstance(frame, DbwCommand):
-                self._pending.append((now_s + delay_s, frame))
-        while self._pending and self._pending[0][0] <= now_s:
-            self._cmd = self._pending.popleft()[1]
+                due = now_s + self._actuator_delay_s
+                self._pending.append((due, frame))
+                if due < self._next_event_s:
+                    self._next_event_s = due
 
-    def _advance_lead(self, t: float, dt: float) -> None:
+    def _advance_lead(self, t_prev: float, t: float) -> None:
         lead = self.scenario.lead
         if lead is None:
             return
-        self._lead_pos_m += ramp_value(lead.speed_profile, t) * dt
+        # Trapezoid: exact for the piecewise-linear speed profile between events.
+        profile = lead.speed_profile
+        self._lead_pos_m += 0.5 * (ramp_value(profile, t_prev) + ramp_value(profile, t)) * (t - t_prev)
         gap = self.lead_gap_m(t)
         if gap is not None:
             self.min_gap_m = min(self.min_gap_m, gap)
