@@ -10,7 +10,6 @@ frame does not pay for the rest of vehicle CAN), and gives `recv(timeout=0)` a l
 
 from __future__ import annotations
 
-import queue
 from typing import Any, ClassVar
 
 import can
@@ -56,19 +55,16 @@ class SimVirtualBus(VirtualBus):
             if bus_queue is self.queue:
                 continue
             receiver = by_queue.get(id(bus_queue))
-            if receiver is not None and receiver.filters and not receiver._matches_filters(rx):
-                continue
-            bus_queue.put_nowait(rx)
+            if receiver is None:
+                bus_queue.put_nowait(rx)  # a stock bus (a recorder, say) may block on its queue
+            elif not receiver.filters or receiver._matches_filters(rx):
+                bus_queue.queue.append(rx)  # single-threaded lockstep: no lock, no one to wake
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if timeout == 0:
-            # Frames were filtered when queued; peeking the Queue's deque is safe single-threaded.
-            if not self.queue.queue:
-                return None
-            try:
-                return self.queue.get_nowait()
-            except queue.Empty:
-                return None
+            # Frames were filtered when queued; the Queue's deque is ours alone single-threaded.
+            frames = self.queue.queue
+            return frames.popleft() if frames else None
         return super().recv(timeout)
 
     def shutdown(self) -> None:

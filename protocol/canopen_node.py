@@ -40,8 +40,10 @@ from __future__ import annotations
 import collections
 import configparser
 import contextlib
+import functools
 import io
 import logging
+import math
 import queue
 import struct
 import time
@@ -55,7 +57,7 @@ from typing import Any
 
 import can
 import canopen
-from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
+from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 from canopen.objectdictionary.datatypes import INTEGER_TYPES
 from canopen.sdo import SdoAbortedError, SdoClient, SdoCommunicationError
 from canopen.sdo.exceptions import SdoError
@@ -224,6 +226,19 @@ def _where(index: int, subindex: int | None) -> str:
     return f"0x{index:04X}" if subindex is None else f"0x{index:04X}sub{subindex:X}"
 
 
+# struct codes of the CiA 301 integer types a PDO can map whole.
+_STRUCT_CODES: dict[int, str] = {
+    datatypes.INTEGER8: "b",
+    datatypes.INTEGER16: "h",
+    datatypes.INTEGER32: "i",
+    datatypes.INTEGER64: "q",
+    datatypes.UNSIGNED8: "B",
+    datatypes.UNSIGNED16: "H",
+    datatypes.UNSIGNED32: "I",
+    datatypes.UNSIGNED64: "Q",
+}
+
+
 @dataclass(frozen=True)
 class PdoEntry:
     """One object mapped into a PDO, at a whole-byte offset."""
@@ -258,7 +273,7 @@ class PdoLayout:
     def name(self) -> str:
         return f"{'TPDO' if self.is_tx else 'RPDO'}{self.number}"
 
-    @property
+    @functools.cached_property
     def keys(self) -> tuple[tuple[int, int], ...]:
         return tuple(e.key for e in self.entries)
 
@@ -274,14 +289,35 @@ class PdoLayout:
             out += data
         return bytes(out)
 
+    @functools.cached_property
+    def _frame_struct(self) -> struct.Struct | None:
+        """The whole frame as one struct (little-endian, in mapping order), when every mapped object
+        is a plain integer type: one unpack per frame instead of one OD lookup per object."""
+        codes = []
+        for e in self.entries:
+            code = _STRUCT_CODES.get(e.var.data_type)
+            if code is None or struct.calcsize("<" + code) != e.n_bytes:
+                return None
+            codes.append(code)
+        return struct.Struct("<" + "".join(codes))
+
     def encode(self, values: Mapping[tuple[int, int], int]) -> bytes:
-        """Frame from each mapped object's integer value."""
-        return self.pack({e.key: e.var.encode_raw(values[e.key]) for e in self.entries})
+        """Frame from each mapped object's integer value; ValueError if one does not fit its type."""
+        packer = self._frame_struct
+        if packer is None:
+            return self.pack({e.key: e.var.encode_raw(values[e.key]) for e in self.entries})
+        try:
+            return packer.pack(*(int(values[e.key]) for e in self.entries))
+        except struct.error as exc:
+            raise ValueError(f"{self.name}: a value does not fit its object's type: {exc}") from None
 
     def decode(self, data: bytes | bytearray) -> dict[tuple[int, int], int]:
         """Frame -> each mapped object's integer value; ValueError on a wrong frame length."""
         if len(data) != self.n_bytes:
             raise ValueError(f"{self.name} has {len(data)} data bytes, mapping says {self.n_bytes}")
+        unpacker = self._frame_struct
+        if unpacker is not None:
+            return dict(zip(self.keys, unpacker.unpack(data), strict=True))
         values: dict[tuple[int, int], int] = {}
         for e in self.entries:
             values[e.key] = int(e.var.decode_raw(bytes(data[e.byte_offset : e.byte_offset + e.n_bytes])))
@@ -383,6 +419,10 @@ class EventTimer:
     def reset(self) -> None:
         """Make the next `due` fire at once."""
         self._next_us = None
+
+    def next_s(self) -> float:
+        """Before this instant `due` is surely False (a microsecond early; -inf: due at once)."""
+        return -math.inf if self._next_us is None else (self._next_us - 1) * 1e-6
 
     def due(self, now_s: float) -> bool:
         next_us = self._next_us
@@ -582,6 +622,9 @@ class EcuNode:
         self._request_was_fresh = False
         self._reported_faults = Fault.NONE
         self._rx_now_s = clock.now()
+        self._rx_frames = 0  # frames polled so far
+        self._quiet_until_s = -math.inf  # `tick` has nothing to do before then (without new frames)
+        self._quiet_rx_frames = 0
         self._nmt_state = NmtState.INITIALISING
         self.host_heartbeat = HeartbeatConsumer(host_node_id, 0)
         self._load_communication_parameters()
@@ -627,11 +670,14 @@ class EcuNode:
         self._rx_now_s = self._clock.now() if now_s is None else now_s
         frames, errors = _drain(self._bus, self.network, 0.0, self._max_frames)
         self.dispatch_errors += errors
+        self._rx_frames += frames
         return frames
 
     def tick(self, now_s: float | None = None) -> None:
         """Heartbeat producer, TPDO event timers, and the timeout counters."""
         now = self._clock.now() if now_s is None else now_s
+        if now < self._quiet_until_s and self._rx_frames == self._quiet_rx_frames:
+            return  # no timer due, nothing expiring, no frame since the last full tick
         if self._hb_timer.due(now):
             self._send(HEARTBEAT_COB_BASE + self.node_id, bytes([self._nmt_state]))
         self.host_heartbeat.update(now)
@@ -640,6 +686,12 @@ class EcuNode:
             self.request_stats.deadline_misses += 1
         self._request_was_fresh = fresh
         self._service_tpdos(now)
+        quiet = min(self._hb_timer.next_s(), self.freshness_horizon_s(now))
+        if self._nmt_state is NmtState.OPERATIONAL:
+            for timer in self._tpdo_timers.values():
+                quiet = min(quiet, timer.next_s())
+        self._quiet_until_s = quiet
+        self._quiet_rx_frames = self._rx_frames
 
     def latest_request(self) -> tuple[HostRequest, float] | None:
         """The last accepted host request and its receive time (None after boot / leaving OPERATIONAL)."""
@@ -654,6 +706,18 @@ class EcuNode:
     def host_alive(self, now_s: float) -> bool:
         """Host heartbeat fresh within 0x1016's time AND the host reports OPERATIONAL."""
         return self.host_heartbeat.alive(now_s, (NmtState.OPERATIONAL,))
+
+    def freshness_horizon_s(self, now_s: float) -> float:
+        """Until when (without new frames) `host_alive` and `request_fresh` keep their value at
+        `now_s`: the earliest expiry of what is fresh now, a microsecond early (inf: nothing
+        fresh, nothing to expire)."""
+        horizon = math.inf
+        hb = self.host_heartbeat
+        if hb.fresh(now_s):
+            horizon = (hb._last_rx_us + hb.timeout_ms * 1000 - 1) * 1e-6
+        if self.request_fresh(now_s):
+            horizon = min(horizon, (self._latest_us + self.request_deadline_ms * 1000 - 1) * 1e-6)
+        return horizon
 
     def publish_status(self, status: EcuStatus, now_s: float | None = None) -> None:
         """Write the status record (0x2100) and error register (0x1001) into the OD; send due TPDOs."""
@@ -866,6 +930,7 @@ class EcuNode:
 
     def _set_state(self, state: NmtState) -> None:
         old, self._nmt_state = self._nmt_state, state
+        self._quiet_until_s = -math.inf  # timers restart: the next tick does everything
         if old is NmtState.OPERATIONAL and state is not NmtState.OPERATIONAL:
             # Requests are processed only in OPERATIONAL: forget the last one and resync counters.
             self._latest = None
@@ -879,8 +944,15 @@ class EcuNode:
             return
         for layout in self.tpdos:
             if self._tpdo_timers[layout.number].due(now_s):
-                # Read through the OD at transmit time (the canopen #558 gap).
-                data = {key: self.node.get_data(*key) for key in layout.keys}
+                # Read through the OD at transmit time (the canopen #558 gap). Without read
+                # callbacks that is the data store, else canopen's own lookup (EDS value, default).
+                node = self.node
+                store = None if node._read_callbacks else node.data_store
+                data = {}
+                for key in layout.keys:
+                    stored = store.get(key[0]) if store is not None else None
+                    raw = stored.get(key[1]) if stored is not None else None
+                    data[key] = raw if raw is not None else node.get_data(*key)
                 self._send(layout.cob_id, layout.pack(data))
 
     def _store(self, index: int, subindex: int, value: int | str | bytes) -> None:
