@@ -73,7 +73,9 @@ RUNTIME_DISTRIBUTIONS: tuple[str, ...] = ("python-can", "python-can-remote", "ca
 # Files of bywire itself, per package: glob patterns relative to the package directory.
 _BYWIRE_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("bywire", ("__init__.py", "clock.py")),
-    ("bywire.protocol", ("**/*.py", "*.dbc", "*.eds")),
+    # The protocol's top level only: its subpackages are the host's (protocol/v2x: V2V messages,
+    # which the ECU never speaks, and whose asn1tools is not among the image's distributions).
+    ("bywire.protocol", ("*.py", "*.dbc", "*.eds")),
     ("bywire.ecu", ("**/*.py", "calibrations/*.json")),
 )
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # the earliest date a zip entry can carry
