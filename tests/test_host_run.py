@@ -39,12 +39,17 @@ def test_host_runs_a_configuration_on_the_wall_clock(tmp_path: Path) -> None:
     modules = doc["modules"]
     assert list(modules) == [m.spec.name for m in load_host_config("default").modules]
     for name, m in modules.items():
-        assert 60 <= m["completed"] <= 80, (name, m)  # 1.5 s at 50 Hz
+        # 1.5 s at 50 Hz: every period of the grid is either released or, on a loaded machine that
+        # fell behind, counted as skipped; each release completed.
+        assert 70 <= m["releases"] + m["skipped"] <= 80, (name, m)
+        assert m["completed"] == m["releases"] >= 30, (name, m)
         assert m["restarts"] == 0 and m["state"] == "running"
     info = _bywire("log", "info", str(record), "--json", "-")
     assert info.returncode == 0, info.stderr
     topics = json.loads(info.stdout[info.stdout.index("{") :])["topics"]
-    assert topics["/control/request"]["count"] >= 60 and topics["/run/info"]["count"] == 1
+    # Every completed release of the controller published one request, and the recording holds each.
+    assert topics["/control/request"]["count"] == modules["longitudinal"]["completed"]
+    assert topics["/run/info"]["count"] == 1
 
 
 def test_a_bad_configuration_is_refused_with_its_field(tmp_path: Path) -> None:
