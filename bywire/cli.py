@@ -44,6 +44,21 @@ def _hil_run_arguments(p: argparse.ArgumentParser, scenario_required: bool = Tru
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
+# Benchmarks taking --seconds and --json: declared here so that `--help` imports nothing heavy.
+_TIMED_BENCHES = {
+    "platoon": "the follow-control QP and the 10-vehicle platoon step, vs. cvxpy (issue 4)",
+    "v2x": "V2X codec and hardened receiver per message, vs. struct (issue 4)",
+    "world": "world model: lane-map match, vehicle prediction, pose filter (issue 4)",
+    "urban": "moving-traffic check, intersection precedence, lateral controller (issue 5)",
+}
+_BENCH_MODULES = {
+    "platoon": "bywire.host.platoon.bench",
+    "v2x": "bywire.protocol.v2x.bench",
+    "world": "bywire.host.world.bench",
+    "urban": "bywire.host.behaviour.bench",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bywire", description=__doc__.splitlines()[0])
     from bywire import __version__
@@ -77,15 +92,22 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", type=Path, help="write the loop statistics as JSON")
     be.add_argument("--report", type=Path, help="directory for the run's logs and traces")
 
+    from bywire.host.roadnet import bench as roadnet_bench  # light: the subsystem loads in main()
+
+    roadnet_bench.add_arguments(
+        bench.add_parser("roadnet", help="RNDF/MDF parse, graph and mission route on NQE and VAIL (issue 5)")
+    )
+
     br = bench.add_parser(
         "runtime", help="object store and cross-process transport: latency and throughput, with baselines"
     )
     br.add_argument("--seconds", type=float, default=None, help="scale the measuring time (default ~30 s)")
     br.add_argument("--json", type=Path, help="write the results as JSON")
 
-    bp = bench.add_parser("platoon", help="the follow-control QP and the 10-vehicle platoon step (issue 4)")
-    bp.add_argument("--seconds", type=float, default=None, help="scale the measuring time")
-    bp.add_argument("--json", type=Path, help="write the results as JSON")
+    for name, help_text in _TIMED_BENCHES.items():
+        b = bench.add_parser(name, help=help_text)
+        b.add_argument("--seconds", type=float, default=None, help="scale the measuring time")
+        b.add_argument("--json", type=Path, help="write the results as JSON")
 
     log = sub.add_parser("log", help="recordings (MCAP): info, plot, replay")
     from bywire.host.runtime import log_cli
@@ -103,6 +125,25 @@ def build_parser() -> argparse.ArgumentParser:
             help="string stability of a recorded platoon (OpenACC or CARMA CSV): worst spectral ratio",
         )
     )
+
+    from bywire.host.roadnet import roadnet_cli  # stdlib-only imports
+
+    rndf = sub.add_parser("rndf", help="road network files (issue 5)").add_subparsers(
+        dest="rndf_command", required=True, metavar="COMMAND"
+    )
+    roadnet_cli.add_rndf_check_arguments(
+        rndf.add_parser("check", help="parse RNDF/MDF files; each error as file:line: what was expected")
+    )
+    mission = sub.add_parser("mission", help="missions (issue 5)").add_subparsers(
+        dest="mission_command", required=True, metavar="COMMAND"
+    )
+    roadnet_cli.add_mission_plan_arguments(
+        mission.add_parser("plan", help="the fastest route through an MDF's checkpoints, in order")
+    )
+
+    from bywire.protocol.v2x import v2x_cli
+
+    v2x_cli.add_arguments(sub.add_parser("v2x", help="V2X link tools: meter, echo, ping, fuzz (issue 4)"))
 
     bus = sub.add_parser("bus", help="virtual CAN buses").add_subparsers(dest="bus_command", required=True)
     serve = bus.add_parser("serve", help="serve a python-can virtual bus to other processes on loopback")
@@ -192,10 +233,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _cmd_hil_run(args, "demo", "hil")
             return _cmd_hil_run(args, args.scenario, "sil")
         if args.command == "bench":
-            if args.bench_command == "platoon":
-                from bywire.host.platoon import bench as platoon_bench
+            if args.bench_command in _TIMED_BENCHES:
+                import importlib
 
-                return platoon_bench.main(args)
+                module = importlib.import_module(_BENCH_MODULES[args.bench_command])
+                if args.seconds is None:  # each benchmark has its own default
+                    args.seconds = getattr(module, "DEFAULT_SECONDS", None)
+                return int(module.main(args))
+            if args.bench_command == "roadnet":
+                from bywire.host.roadnet import bench as roadnet_bench
+
+                return roadnet_bench.main(args)
             if args.bench_command == "runtime":
                 from bywire.host.runtime import bench as runtime_bench
 
@@ -207,6 +255,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             from bywire.host.platoon import platoon_cli
 
             return platoon_cli.main(args)
+        if args.command in ("rndf", "mission"):
+            from bywire.host.roadnet import roadnet_cli
+
+            if args.command == "rndf":
+                return roadnet_cli.main_rndf_check(args)
+            return roadnet_cli.main_mission_plan(args)
+        if args.command == "v2x":
+            from bywire.protocol.v2x import v2x_cli
+
+            return v2x_cli.main(args)
         if args.command == "log":
             from bywire.host.runtime import log_cli
 
