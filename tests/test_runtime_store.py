@@ -136,3 +136,44 @@ def test_time_queries_match_a_brute_force_reference(times: list[float], query: f
     expected = [p for p in held if p.t_s <= query]
     assert store.at_or_before("pose", query) == (expected[-1] if expected else None)
     assert store.latest("pose") == held[-1]
+
+
+def test_reads_as_of_a_publication_count_see_the_store_as_it_was() -> None:
+    """What a late module sees (ModuleContext.as_of): nothing published after its release."""
+    store = ObjectStore()
+    store.publish("pose", Pose(t_s=0.0, x_m=0.0, v_mps=1.0))
+    store.publish("mode", Mode(t_s=0.0, name="a"))
+    store.publish("pose", Pose(t_s=1.0, x_m=10.0, v_mps=1.0))
+    sub = store.subscribe("mode")
+    as_of = store.seq
+    assert as_of == 3
+    store.publish("pose", Pose(t_s=2.0, x_m=20.0, v_mps=1.0))
+    store.publish("mode", Mode(t_s=0.5, name="b"))
+    assert store.latest("pose", as_of).x_m == 10.0 and store.latest("pose").x_m == 20.0
+    assert store.latest("mode", as_of).name == "a" and store.latest("mode").name == "b"
+    assert store.at_or_before("pose", 5.0, as_of).x_m == 10.0
+    assert store.at_or_before("pose", 0.5, as_of).x_m == 0.0
+    # Interpolation stops at the view's newest object instead of using the later one.
+    assert store.interpolated("pose", 1.5, as_of).x_m == 10.0
+    assert store.interpolated("pose", 1.5).x_m == pytest.approx(15.0)
+    assert sub.poll(as_of) is None  # "b" came later
+    assert sub.poll().name == "b" and sub.last_store_seq == 5
+    assert store.latest("pose", 0) is None and store.latest("nothing", as_of) is None
+
+
+@given(st.lists(st.sampled_from(["p", "q"]), min_size=1, max_size=40), st.data())
+def test_as_of_reads_match_a_store_that_stopped_there(topics: list[str], data: st.DataObject) -> None:
+    cut = data.draw(st.integers(0, len(topics)))
+    full, stopped = ObjectStore(default_history=8), ObjectStore(default_history=8)
+    for i, topic in enumerate(topics):
+        obj = Pose(t_s=float(i), x_m=float(i))
+        full.publish(topic, obj)
+        if i < cut:
+            stopped.publish(topic, obj)
+    for topic in ("p", "q"):
+        for t in (-1.0, cut / 2, float(len(topics))):
+            # (history is bounded: what the stopped store still holds, the full one may have dropped)
+            mine = full.at_or_before(topic, t, cut)
+            theirs = stopped.at_or_before(topic, t)
+            assert mine is None or mine == theirs
+        assert full.latest(topic, cut) in (stopped.latest(topic), None)

@@ -140,7 +140,7 @@ class InlineWorker(WorkerState):
             return False
         module = self._module
         self.busy_since_s = self._clock.now()
-        self.ctx.now_s = now_s
+        self.ctx.release(now_s)
         self.stats.releases += 1
         self.stats.last_release_s = now_s
         published_before = self.ctx.published

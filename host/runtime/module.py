@@ -83,6 +83,10 @@ class ModuleSpec:
     deadline_s: float = 0.010
     policy: FailurePolicy = field(default_factory=FailurePolicy)
     isolation: Isolation = "thread"
+    # Released every period even when a module it consumes from is late in this cycle's chain: a sink
+    # that keeps a link alive (the ECU link's heartbeat and requests) and judges its inputs' age itself.
+    # Other consumers of a late producer wait for the next cycle rather than run on stale data.
+    always_release: bool = False
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
@@ -106,6 +110,11 @@ class ModuleSpec:
 class ModuleContext:
     """What a module sees of the runtime during a release: the time, its inputs, its outputs, its params.
 
+    A release sees the store as it was when it was released (`as_of`, set by the worker): a module
+    that runs late, on a busy machine or because it is slow, computes on its release's inputs, not on
+    objects other modules published meanwhile. Its outputs are then the same as on time, which is
+    what a replay of the run reproduces.
+
     Publications are fenced by generation: once the supervisor has given up on an instance (hung,
     deadlocked), anything that instance still publishes is dropped, so a zombie can never overwrite
     the outputs of its replacement.
@@ -120,28 +129,38 @@ class ModuleContext:
         self.generation = generation
         self.fenced = False
         self.now_s = 0.0  # the release time on the runtime's clock
+        self.as_of: int | None = None  # the store's publication count at the release (None: now)
         self.published = 0
         self._subs: dict[str, Subscription[Any]] = {}
 
+    def release(self, now_s: float) -> None:
+        """Called by the worker as it releases a step: the time, and the store as of now."""
+        self.now_s = now_s
+        self.as_of = self.store.seq
+
     def latest(self, topic: str) -> Any | None:
         self._check_input(topic)
-        return self.store.latest(topic)
+        return self.store.latest(topic, self.as_of)
 
     def at_or_before(self, topic: str, t_s: float) -> Any | None:
         self._check_input(topic)
-        return self.store.at_or_before(topic, t_s)
+        return self.store.at_or_before(topic, t_s, self.as_of)
 
     def interpolated(self, topic: str, t_s: float) -> Any | None:
         self._check_input(topic)
-        return self.store.interpolated(topic, t_s)
+        return self.store.interpolated(topic, t_s, self.as_of)
 
     def new(self, topic: str) -> list[Any]:
-        """Every object on `topic` since this module instance last asked (non-blocking)."""
+        """Every object on `topic` since this module instance last asked (non-blocking), up to the
+        release's view of the store."""
         self._check_input(topic)
         sub = self._subs.get(topic)
         if sub is None:
             sub = self._subs[topic] = self.store.subscribe(topic)
-        return list(sub)
+        out = []
+        while (obj := sub.poll(self.as_of)) is not None:
+            out.append(obj)
+        return out
 
     def publish(self, topic: str, obj: object) -> None:
         if topic not in self.spec.outputs:

@@ -246,7 +246,7 @@ def replay(path: Path, modules: list[str] | None = None) -> ReplayResult:
             inst = live[name] = _Instance(
                 next(s for s in order if s.name == name), builders[name], store, generation[name]
             )
-        inst.ctx.now_s = t
+        inst.ctx.release(t)
         inst.module.step(inst.ctx)
         releases += 1
 

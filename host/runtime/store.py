@@ -69,6 +69,20 @@ class _Topic:
     times: deque[float]
     objects: deque[Any]
     published: int = 0  # sequence number of the last publication (1-based)
+    # The store-wide publication number of each object held: increasing along the deque, so the
+    # objects published up to a given number are always a prefix of the history.
+    store_seqs: deque[int] = dataclasses.field(default_factory=deque)
+
+    @classmethod
+    def empty(cls, obj_type: type, history: int) -> _Topic:
+        return cls(obj_type, history, deque(maxlen=history), deque(maxlen=history), 0, deque(maxlen=history))
+
+    def held_as_of(self, as_of: int | None) -> int:
+        """How many of the held objects (oldest first) were published at or before store number `as_of`."""
+        n = len(self.objects)
+        if as_of is None or n == 0 or self.store_seqs[-1] <= as_of:
+            return n
+        return bisect.bisect_right(self.store_seqs, as_of)
 
 
 class ObjectStore:
@@ -82,6 +96,7 @@ class ObjectStore:
         self._lock = threading.Lock()
         self._published = threading.Condition(self._lock)
         self._taps: list[Callable[[str, Any], None]] = []
+        self._seq = 0  # publications so far, store-wide (see `seq`)
 
     def add_tap(self, tap: Callable[[str, Any], None]) -> None:
         """Call `tap(topic, obj)` after every publication (recorders, live views, bridges).
@@ -105,7 +120,7 @@ class ObjectStore:
             if known is not None and known.type is not obj_type:
                 raise StoreError(f"topic {topic!r} carries {known.type.__name__}, not {obj_type.__name__}")
             if known is None:
-                self._topics[topic] = _Topic(obj_type, n, deque(maxlen=n), deque(maxlen=n))
+                self._topics[topic] = _Topic.empty(obj_type, n)
 
     def publish(self, topic: str, obj: object) -> int:
         """Publish `obj` (a frozen dataclass with `t_s`); returns its sequence number on the topic.
@@ -117,12 +132,7 @@ class ObjectStore:
         with self._lock:
             entry = self._topics.get(topic)
             if entry is None:
-                entry = self._topics[topic] = _Topic(
-                    type(obj),
-                    self._default_history,
-                    deque(maxlen=self._default_history),
-                    deque(maxlen=self._default_history),
-                )
+                entry = self._topics[topic] = _Topic.empty(type(obj), self._default_history)
             elif type(obj) is not entry.type:
                 raise StoreError(f"topic {topic!r} carries {entry.type.__name__}, not {type(obj).__name__}")
             if entry.times and t_s < entry.times[-1]:
@@ -132,6 +142,8 @@ class ObjectStore:
             entry.times.append(t_s)
             entry.objects.append(obj)
             entry.published += 1
+            self._seq += 1
+            entry.store_seqs.append(self._seq)
             seq = entry.published
             self._published.notify_all()
         for tap in self._taps:
@@ -144,21 +156,31 @@ class ObjectStore:
         with self._lock:
             return {name: entry.type for name, entry in self._topics.items()}
 
-    def latest(self, topic: str) -> Any | None:
+    @property
+    def seq(self) -> int:
+        """The number of publications so far, store-wide. Reads given `as_of=store.seq` see the store
+        as it is now, whatever is published later: what a module released now may read (see
+        `ModuleContext`), so that a module that runs late still computes on its release's data."""
+        return self._seq
+
+    def latest(self, topic: str, as_of: int | None = None) -> Any | None:
         with self._lock:
             entry = self._topics.get(topic)
-            return entry.objects[-1] if entry is not None and entry.objects else None
+            if entry is None:
+                return None
+            n = entry.held_as_of(as_of)
+            return entry.objects[n - 1] if n else None
 
-    def at_or_before(self, topic: str, t_s: float) -> Any | None:
+    def at_or_before(self, topic: str, t_s: float, as_of: int | None = None) -> Any | None:
         """The newest object valid at or before `t_s` still in the history; None if there is none."""
         with self._lock:
             entry = self._topics.get(topic)
             if entry is None:
                 return None
-            i = bisect.bisect_right(entry.times, t_s)
+            i = bisect.bisect_right(entry.times, t_s, 0, entry.held_as_of(as_of))
             return entry.objects[i - 1] if i > 0 else None
 
-    def interpolated(self, topic: str, t_s: float) -> Any | None:
+    def interpolated(self, topic: str, t_s: float, as_of: int | None = None) -> Any | None:
         """The object at `t_s` interpolated between its neighbours, for types that allow it.
 
         Outside the history's span there is nothing to interpolate between: None before the oldest
@@ -170,11 +192,12 @@ class ObjectStore:
                 return None
             if not isinstance(entry.type, type) or not issubclass(entry.type, Interpolatable):
                 raise StoreError(f"topic {topic!r}: {entry.type.__name__} does not define interpolate()")
-            i = bisect.bisect_right(entry.times, t_s)
+            n = entry.held_as_of(as_of)
+            i = bisect.bisect_right(entry.times, t_s, 0, n)
             if i == 0:
                 return None
             before = entry.objects[i - 1]
-            if i == len(entry.objects) or entry.times[i - 1] == t_s:
+            if i == n or entry.times[i - 1] == t_s:
                 return before
             after = entry.objects[i]
         return entry.type.interpolate(before, after, t_s)
@@ -197,15 +220,21 @@ class ObjectStore:
 
     # -- for Subscription ------------------------------------------------------------------------------
 
-    def _next_after(self, topic: str, seen: int) -> tuple[Any | None, int, int]:
-        """(next object after sequence `seen`, its sequence, objects lost to the bounded history)."""
+    def _next_after(
+        self, topic: str, seen: int, as_of: int | None = None
+    ) -> tuple[Any | None, int, int, int]:
+        """(next object after topic sequence `seen` published at or before store number `as_of`,
+        its topic sequence, objects lost to the bounded history, its store number)."""
         entry = self._topics.get(topic)
         if entry is None or entry.published <= seen:
-            return None, seen, 0
+            return None, seen, 0, 0
         oldest = entry.published - len(entry.objects) + 1
         lost = max(0, oldest - (seen + 1))
         nxt = max(seen + 1, oldest)
-        return entry.objects[nxt - oldest], nxt, lost
+        store_seq = entry.store_seqs[nxt - oldest]
+        if as_of is not None and store_seq > as_of:
+            return None, seen, 0, 0
+        return entry.objects[nxt - oldest], nxt, lost, store_seq
 
 
 class Subscription(Generic[T]):
@@ -216,10 +245,12 @@ class Subscription(Generic[T]):
         self.topic = topic
         self._seen = seen
         self.lost = 0  # objects that left the bounded history before this reader got to them
+        self.last_store_seq = 0  # the store-wide publication number of the last object taken
 
-    def poll(self) -> T | None:
+    def poll(self, as_of: int | None = None) -> T | None:
+        """The next unread object (published at or before store number `as_of`), or None."""
         with self._store._lock:
-            return self._take()
+            return self._take(as_of)
 
     def wait(self, timeout_s: float | None = None) -> T | None:
         with self._store._published:
@@ -237,11 +268,12 @@ class Subscription(Generic[T]):
     def _peek(self) -> bool:
         return self._store._next_after(self.topic, self._seen)[0] is not None
 
-    def _take(self) -> T | None:
-        obj, seq, lost = self._store._next_after(self.topic, self._seen)
+    def _take(self, as_of: int | None = None) -> T | None:
+        obj, seq, lost, store_seq = self._store._next_after(self.topic, self._seen, as_of)
         if obj is not None:
             self._seen = seq
             self.lost += lost
+            self.last_store_seq = store_seq
         return obj
 
 

@@ -195,7 +195,7 @@ class ThreadWorker(WorkerState):
             return False
         self._done.acquire()
         self.busy_since_s = self._clock.now()  # the real release instant (a chain releases late)
-        self.ctx.now_s = now_s
+        self.ctx.release(now_s)
         self.stats.releases += 1
         self.stats.last_release_s = now_s
         self._go.release()
