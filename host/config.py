@@ -168,6 +168,7 @@ def _module(r: _Reader) -> ModuleConfig:
     period_ms = r.number("period_ms", default=kind.period_s * 1e3, lo=0.1, hi=3_600_000.0)
     deadline_ms = r.number("deadline_ms", default=kind.deadline_s * 1e3, lo=0.01, hi=3_600_000.0)
     isolation = r.string("isolation", default="thread", choices=("thread", "process"))
+    always_release = r.boolean("always_release", kind.always_release)
     if isolation == "process" and kind.needs_resources:
         raise r.error(
             "isolation", f"a {kind_name} module uses the host's buses and cannot run in a process of its own"
@@ -186,6 +187,7 @@ def _module(r: _Reader) -> ModuleConfig:
             deadline_s=deadline_ms / 1e3,
             policy=policy,
             isolation=isolation,  # type: ignore[arg-type]
+            always_release=always_release,
         )
     except ValueError as exc:
         raise r.error("name", str(exc)) from exc

@@ -220,3 +220,80 @@ def test_bad_declarations_are_refused() -> None:
         ModuleSpec("m", trigger="/t")
     with pytest.raises(ValueError, match="escalate_to cannot be restart"):
         FailurePolicy(escalate_to="restart")
+
+
+class SlowReader(Module):
+    """Sleeps, then reads its input: on a busy host the input moves on meanwhile."""
+
+    def __init__(self, seen: list[tuple[float, float]]) -> None:
+        self.seen = seen
+
+    def step(self, ctx: ModuleContext) -> None:
+        time.sleep(0.03)
+        tick = ctx.latest("/fast")
+        self.seen.append((ctx.now_s, tick.t_s if tick is not None else -1.0))
+        ctx.publish("/slow", Tick(ctx.now_s, len(self.seen)))
+
+
+class Sink(Module):
+    def __init__(self, log: list[float]) -> None:
+        self.log = log
+
+    def step(self, ctx: ModuleContext) -> None:
+        self.log.append(ctx.now_s)
+        ctx.publish(ctx.spec.outputs[0], Tick(ctx.now_s, len(self.log)))
+
+
+def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_consumers() -> None:
+    """Wall time (HIL, the car): the chain waits a module's deadline, not longer. A late module
+    computes on the store as of its release (never on what was published while it ran late); a
+    consumer of it waits for the next cycle; a sink that must run every period (the ECU link) does."""
+    from bywire.clock import WallClock
+
+    clock = WallClock()
+    store = ObjectStore()
+    rt = Runtime(store, clock, lockstep=False)
+    seen: list[tuple[float, float]] = []
+    sink_log: list[float] = []
+    consumer_log: list[float] = []
+    rt.add_module(
+        ModuleSpec("fast", outputs=("/fast",), period_s=0.005, deadline_s=0.004), lambda: Counter("/fast")
+    )
+    rt.add_module(
+        ModuleSpec(
+            "slow",
+            inputs=("/fast",),
+            outputs=("/slow",),
+            period_s=0.04,
+            deadline_s=0.005,
+            policy=FailurePolicy(action="degrade"),  # keeps running, late, for the whole test
+        ),
+        lambda: SlowReader(seen),
+    )
+    rt.add_module(
+        ModuleSpec("consumer", inputs=("/slow",), outputs=("/consumer",), period_s=0.04, deadline_s=0.005),
+        lambda: Sink(consumer_log),
+    )
+    rt.add_module(
+        ModuleSpec(
+            "link",
+            inputs=("/slow",),
+            outputs=("/link",),
+            period_s=0.04,
+            deadline_s=0.005,
+            always_release=True,
+        ),
+        lambda: Sink(sink_log),
+    )
+    rt.prestart()
+    t0 = clock.now()
+    rt.start(t0)
+    rt.run_wall(t0 + 0.5, tick_s=0.001)
+    rt.close()
+    assert len(seen) >= 5
+    for release_s, input_t_s in seen:
+        # Never one of the /fast published during the 30 ms sleep (up to six of them).
+        assert release_s - 0.05 < input_t_s <= release_s
+    assert len(sink_log) >= 11, (t0, sink_log, rt.events)  # every period of the 0.5 s run (12 or 13)
+    assert [e.cause for e in rt.events] == ["slow"]
+    assert not consumer_log  # the slow module is late every cycle: its consumer never ran on old data

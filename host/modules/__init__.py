@@ -45,6 +45,7 @@ class ModuleKind:
     build: Builder
     needs_resources: bool = True
     doc: str = ""
+    always_release: bool = False  # see ModuleSpec.always_release
 
 
 def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -129,6 +130,7 @@ KINDS: dict[str, ModuleKind] = {
             0.010,
             _ecu_tx,
             doc="requests and heartbeat to the ECU",
+            always_release=True,
         ),
     )
 }

@@ -5,8 +5,10 @@ module is released at `start + k * period`, a triggered one on every new object 
 topic; each release runs on the module's worker and is measured (execution time, completion,
 deadline miss, overrun when the previous release is still running). The modules due at one tick
 form a chain, released in dependency order, each waited for: in lockstep (SIL, replay) until it is
-done, so a run is deterministic; on wall time (HIL, the car) until it is done or hung, so a late
-module delays its consumers instead of letting them run on old data (see `tick`).
+done, so a run is deterministic; on wall time (HIL, the car) until its deadline. A module still busy
+then holds back its consumers for this cycle instead of letting them run on old data, except the
+sinks that must run every period (`always_release`: the ECU link, whose heartbeat is the host's
+sign of life to the ECU's watchdog); the rest of the chain goes on (see `tick`).
 
 Supervision — the watchdog AnnieWAY lacked (seed 000 section 12: a module hung after an exception,
 its process stayed alive, and a watchdog that only checked that processes existed never noticed).
@@ -171,6 +173,7 @@ class Runtime:
         self._process_worker = process_worker
         self.entries: dict[str, Entry] = {}
         self._order: list[Entry] = []
+        self._consumers: dict[str, frozenset[str]] = {}  # per module: whose inputs derive from its outputs
         self.events: list[SupervisorEvent] = []
         self.start_s: float | None = None
         self._next_health_s = 0.0
@@ -207,6 +210,7 @@ class Runtime:
         the project), on the same cores as everything else: done during the run, it would coincide
         with the first seconds of driving. Their release grid still begins at `start`.
         """
+        self._plan()
         ready = True
         for e in self.entries.values():
             if e.spec.isolation == "process" and e.worker is None:
@@ -219,7 +223,7 @@ class Runtime:
 
     def start(self, now_s: float) -> None:
         """Start every module's worker (in dependency order; in lockstep wait until each is ready)."""
-        self._order = [self.entries[s.name] for s in dependency_order(self.specs)]
+        self._plan()
         self.start_s = now_s
         self._next_health_s = now_s
         for e in self._order:
@@ -228,6 +232,14 @@ class Runtime:
             else:  # prestarted: on the run's grid and clock from now on
                 e.release_k = 0
                 e.started_s = now_s
+
+    def _plan(self) -> None:
+        """The chain's order and each module's consumers, once (the graph library's import alone takes
+        a quarter of a second: done in `prestart` it does not delay the first tick)."""
+        if self._order:
+            return
+        self._order = [self.entries[s.name] for s in dependency_order(self.specs)]
+        self._consumers = {s.name: frozenset(dependants(self.specs, s.name)) for s in self.specs}
 
     def _spawn(self, e: Entry, now_s: float) -> None:
         e.generation += 1
@@ -272,10 +284,13 @@ class Runtime:
 
         The wait makes a cycle's modules a chain (the controller sees this cycle's status, the link
         sends this cycle's request): in lockstep it lasts until the step is done (deterministic
-        runs); on wall time until it is done or hung (`hang_after_s`), after which the rest of the
-        chain goes on without it and the supervisor deals with it. A late module thus delays its
-        consumers rather than letting them run on the previous cycle's data: the data flow stays
-        causal, so a recording of a wall-time run replays exactly.
+        runs); on wall time until the module's deadline. A module not done by then holds back its
+        consumers for this cycle rather than letting them run on the previous cycle's data, so the
+        data flow stays causal and a recording of a wall-time run replays exactly; the supervisor
+        judges the late module at `hang_after_s`. The chain never waits longer than a deadline per
+        module: the ECU link (`always_release`) keeps sending its heartbeat and the newest request
+        (which it refuses once too old, asking for a controlled stop instead), so a module that is
+        late or restarting cannot make the host look dead to the ECU's watchdog.
 
         Supervision comes after the releases, so everything the supervisor publishes at `now_s`
         (limits, stop requests, events, restarts) takes effect from the next releases on: a replay
@@ -285,6 +300,7 @@ class Runtime:
             self.injector.tick(self, now_s)
         if self.lockstep and now_s < self._quiet_until_s:
             return  # lockstep fast path: nothing is due, running or failing (see _quiet_until)
+        held: set[str] = set()  # consumers of a module that is late in this cycle's chain
         for e in self._order:
             w = e.worker
             if w is None or e.state in ("restarting", "stopped", "failed"):
@@ -295,13 +311,22 @@ class Runtime:
                 e.state = "running"
             if not self._due(e, now_s):
                 continue
+            if e.spec.name in held and not e.spec.always_release:
+                # Its input of this cycle is still being computed: no release on the previous
+                # cycle's data (the run stays causal, so it replays exactly); the next cycle will do.
+                w.stats.skipped += 1
+                e.pending = False
+                continue
             if w.release(now_s):
                 if self.lockstep:
                     w.wait_done(self.lockstep_timeout_s)
                 elif not w.wait_done(e.spec.deadline_s):
-                    # Late: sample its CPU time now, so a hang can be told from a deadlock at once.
+                    # Late: sample its CPU time now, so a hang can be told from a deadlock at once,
+                    # and go on with the chain: the supervisor judges it at `hang_after_s`.
                     e.busy_mark = (time.perf_counter(), w.cpu_time_s(), w.busy_since_s or now_s)
-                    w.wait_done(max(0.0, e.spec.hang_after_s - e.spec.deadline_s))
+                    held.update(self._consumers.get(e.spec.name, ()))
+            elif w.busy_since_s is not None:
+                held.update(self._consumers.get(e.spec.name, ()))  # still busy with an earlier release
             e.pending = False
         self.supervise(now_s)
         if now_s >= self._next_health_s:
