@@ -66,6 +66,16 @@ def _topics(name: str, generation: int) -> tuple[str, str]:
     return f"/runtime/worker/{name}/{generation}/ctl", f"/runtime/worker/{name}/{generation}/status"
 
 
+def _realtime_priority() -> int:
+    """The calling thread's SCHED_FIFO/RR priority (0: normal scheduling or unknown)."""
+    try:
+        if os.sched_getscheduler(0) not in (os.SCHED_FIFO, os.SCHED_RR):
+            return 0
+        return int(os.sched_getparam(0).sched_priority)
+    except (OSError, AttributeError):
+        return 0
+
+
 def _drop_realtime() -> int:
     """Put the calling thread on normal scheduling; return the real-time priority it had (0: none).
 
@@ -84,10 +94,22 @@ def _drop_realtime() -> int:
         return 0
 
 
-def _restore_realtime(priority: int) -> None:
-    if priority:
+def _restore_realtime(priority: int, all_threads: bool = False) -> None:
+    """SCHED_FIFO `priority` for the calling thread, or for every thread of the process.
+
+    The child needs it on all its threads: its transport's I/O threads were created while it
+    imported at normal priority, and a thread left there is starved by the real-time tasks on a busy
+    machine: messages stall, and even a SIGKILL takes effect only when every thread has run (seen:
+    a killed worker still "alive", hence judged deadlocked, 60 ms later)."""
+    if not priority:
+        return
+    tids = [0]
+    if all_threads:
+        with contextlib.suppress(OSError):
+            tids = [int(t) for t in os.listdir("/proc/self/task")]
+    for tid in tids:
         with contextlib.suppress(OSError, AttributeError):
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
 
 
 def _child_main(
@@ -128,8 +150,9 @@ def _child_main(
             )
             time.sleep(0.1)  # let the report leave before the process ends
             return
-        # The module's step runs at the priority of the host's module threads.
-        _restore_realtime(rt_priority)
+        # The module's step (and the transport's threads) run at the priority of the host's module
+        # threads from here on.
+        _restore_realtime(rt_priority, all_threads=True)
         pub.send(status_topic, WorkerSignal(0.0, "started", pid=pid))
         while True:
             msg = ctl.wait(PARENT_CHECK_S)
@@ -143,6 +166,9 @@ def _child_main(
             if msg.kind != "step":
                 continue
             ctx.now_s = msg.t_s
+            # The inputs the host published before this release came down the stream before it: the
+            # step sees the local store as of the step signal, not what arrived while it waited.
+            ctx.as_of = ctl.last_store_seq
             wall0 = time.perf_counter()
             before = ctx.published
             try:
@@ -216,7 +242,7 @@ class ProcessWorker(WorkerState):
         # transport: 100 ms without a heartbeat). Only the fork itself runs on normal priority,
         # which the child inherits (see _drop_realtime).
         below_scheduler()
-        rt_priority = 0
+        rt_priority = _realtime_priority()  # what the child takes once it is ready (0: none)
         try:
             if self._closed:
                 return  # given up before it started
@@ -232,11 +258,11 @@ class ProcessWorker(WorkerState):
                 name=f"bywire-{self.spec.name}#{self.generation}",
                 daemon=True,
             )
-            rt_priority = _drop_realtime()
+            dropped = _drop_realtime()
             try:
                 self.process.start()
             finally:
-                _restore_realtime(rt_priority)
+                _restore_realtime(dropped)
             self.pid = self.process.pid
         except Exception as exc:  # a worker that cannot start is a crashed worker
             self.failure = Failure(
