@@ -188,7 +188,8 @@ class CycleStats:
 
     def snapshot(self) -> dict[str, object]:
         """The JSON contract: {"cycles", "overruns", "lateness_us": {p50, p99, p999, max},
-        "compute_us": {p50, p99, max}}. Percentiles over the retained ring, max since start."""
+        "compute_us": {p50, p99, max}}, plus "missed_deadlines" (skipped, not run: see the overrun
+        policy). Percentiles over the retained ring, max since start."""
         lat = self._latest(self._lateness_us, self.retained)
         lat.sort()
         comp = self._latest(self._compute_us, self.retained)
@@ -196,6 +197,7 @@ class CycleStats:
         return {
             "cycles": self.cycles,
             "overruns": self.overruns,
+            "missed_deadlines": self.missed_deadlines,
             "lateness_us": {
                 "p50": _percentile_sorted(lat, 50.0),
                 "p99": _percentile_sorted(lat, 99.0),

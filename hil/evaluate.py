@@ -167,8 +167,10 @@ def evaluate(
     plant: dict[str, np.ndarray],
     host: dict[str, np.ndarray] | None,
     extra: dict[str, Any] | None = None,
+    mode: str = "sil",
 ) -> dict[str, Any]:
-    """The JSON document of a run: scenario, verdict, checks and metrics (issue 2 contract)."""
+    """The JSON document of a run: scenario, verdict, checks and metrics (issue 2 contract).
+    `mode` picks each check's limit (a check may allow more in HIL, see `Check.hil_limit`)."""
     metrics: dict[str, Any] = {}
     if plant["t_s"].size == 0:
         metrics["final_state"] = "NO_DATA"
@@ -216,7 +218,7 @@ def evaluate(
     if runtime is not None:
         metrics.update(supervisor_metrics(scenario, runtime))
     metrics.update(extra)
-    checks = [run_check(c, metrics) for c in scenario.checks]
+    checks = [run_check(c, metrics, mode) for c in scenario.checks]
     verdict = "pass" if checks and all(c["passed"] for c in checks) else "fail"
     if not checks:
         verdict = "pass" if metrics.get("final_state") != "NO_DATA" else "fail"
@@ -231,14 +233,15 @@ def evaluate(
     return document
 
 
-def run_check(check: Check, metrics: dict[str, Any]) -> dict[str, Any]:
+def run_check(check: Check, metrics: dict[str, Any], mode: str = "sil") -> dict[str, Any]:
     value = metrics.get(check.metric)
+    limit = check.limit_for(mode)
     passed = False
     if value is not None:
         if check.op == "max":
-            passed = isinstance(value, int | float) and value <= float(check.limit)
+            passed = isinstance(value, int | float) and value <= float(limit)
         elif check.op == "min":
-            passed = isinstance(value, int | float) and value >= float(check.limit)
+            passed = isinstance(value, int | float) and value >= float(limit)
         else:
-            passed = value == check.limit
-    return {"name": check.name, "passed": bool(passed), "value": value, "limit": check.limit, "op": check.op}
+            passed = value == limit
+    return {"name": check.name, "passed": bool(passed), "value": value, "limit": limit, "op": check.op}

@@ -50,7 +50,7 @@ def run_scenario(
             raise ValueError(f"mode must be sil or hil, not {mode!r}")
         if progress is not None:
             progress(1.0)
-        document = evaluate(scenario, result.plant, result.host, result.extra)
+        document = evaluate(scenario, result.plant, result.host, result.extra, mode)
         document = {
             "scenario": document["scenario"],
             "mode": mode,

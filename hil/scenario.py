@@ -111,6 +111,12 @@ class Check:
     metric: str
     op: str
     limit: float | bool | str
+    # The limit in a HIL run, where it differs: real processes on a shared machine add the operating
+    # system's scheduling latency to every timing (None: the same limit as in SIL).
+    hil_limit: float | bool | str | None = None
+
+    def limit_for(self, mode: str) -> float | bool | str:
+        return self.hil_limit if mode == "hil" and self.hil_limit is not None else self.limit
 
 
 @dataclass(frozen=True)
@@ -196,9 +202,17 @@ def _parse_check(item: Any, source: str, path: str) -> Check:
         raise r.error(op, f"expected a number, got {limit!r}")
     if op == "equals" and not isinstance(limit, bool | str | int | float):
         raise r.error(op, f"expected a value, got {limit!r}")
+    hil_limit = r.raw("hil")
+    if hil_limit is not None:
+        if op == "equals":
+            raise r.error("hil", "a HIL limit applies to max and min checks only")
+        if isinstance(hil_limit, bool) or not isinstance(hil_limit, int | float):
+            raise r.error("hil", f"expected a number, got {hil_limit!r}")
+        if (op == "max" and hil_limit < limit) or (op == "min" and hil_limit > limit):  # type: ignore[operator]
+            raise r.error("hil", f"a HIL limit may only be looser than the SIL one ({op} {limit})")
     name = r.string("name", default=f"{metric}_{op}")
     r.finish()
-    return Check(name=name, metric=metric, op=op, limit=limit)
+    return Check(name=name, metric=metric, op=op, limit=limit, hil_limit=hil_limit)
 
 
 def _relative_to(source: str, path: str) -> str:

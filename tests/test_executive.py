@@ -241,7 +241,7 @@ def test_snapshot_has_exactly_the_contract_shape() -> None:
         stats.record(k * 1e-6, 2e-6, overrun=(k % 10 == 0))
     snap = stats.snapshot()
 
-    assert set(snap) == {"cycles", "overruns", "lateness_us", "compute_us"}
+    assert set(snap) == {"cycles", "overruns", "missed_deadlines", "lateness_us", "compute_us"}
     assert set(snap["lateness_us"]) == {"p50", "p99", "p999", "max"}
     assert set(snap["compute_us"]) == {"p50", "p99", "max"}
     assert snap["cycles"] == 100 and snap["overruns"] == 10

@@ -37,6 +37,10 @@ def test_every_shipped_scenario_parses() -> None:
         ({"host": {"mode": "drive"}}, "host.speed_profile", "drive mode needs"),
         ({"checks": [{"metric": "x", "max": 1, "min": 0}]}, "checks[0]", "exactly one of"),
         ({"vehicle": {"v0_mps": 500}}, "vehicle.v0_mps", "<= 70"),
+        ({"checks": [{"metric": "x", "max": 10, "hil": 5}]}, "checks[0].hil", "only be looser"),
+        ({"checks": [{"metric": "x", "min": 10, "hil": 20}]}, "checks[0].hil", "only be looser"),
+        ({"checks": [{"metric": "x", "equals": "A", "hil": "B"}]}, "checks[0].hil", "max and min"),
+        ({"checks": [{"metric": "x", "max": 10, "hil": "soon"}]}, "checks[0].hil", "expected a number"),
     ],
 )
 def test_bad_fields_are_named(patch: dict, path: str, words: str) -> None:
@@ -72,3 +76,15 @@ def test_profiles() -> None:
     assert step_value(profile, 1.9) == 1.0 and step_value(profile, 2.0) == 3.0
     assert ramp_value(profile, 1.0) == pytest.approx(2.0)
     assert ramp_value(profile, 5.0) == 3.0 and ramp_value((), 1.0, default=4.0) == 4.0
+
+
+def test_a_check_may_allow_more_in_hil() -> None:
+    from bywire.hil.evaluate import run_check
+
+    scenario = parse_scenario({**BASE, "checks": [{"metric": "detect_ms", "max": 41, "hil": 120}]}, "x.yaml")
+    (check,) = scenario.checks
+    sil = run_check(check, {"detect_ms": 70.0}, "sil")
+    hil = run_check(check, {"detect_ms": 70.0}, "hil")
+    assert (sil["passed"], sil["limit"]) == (False, 41)
+    assert (hil["passed"], hil["limit"]) == (True, 120)
+    assert not run_check(check, {"detect_ms": 121.0}, "hil")["passed"]
