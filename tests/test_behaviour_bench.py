@@ -24,6 +24,7 @@ def test_bench_runs_and_writes_json(tmp_path: Path, capsys) -> None:
         "precedence_update",
         "lateral_step",
         "lateral_step_hinted",
+        "hsm_step",
     }
     for name, r in rows.items():
         assert r["n"] >= 400 and 0.0 < r["p50_us"] <= r["p99_us"] <= r["max_us"], name

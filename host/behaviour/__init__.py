@@ -5,5 +5,14 @@
 - `mtc`: the moving-traffic check of Sec. 9 (eqs. 8-17), pure functions.
 - `precedence`: four-way-stop precedence (`IntersectionPrecedence`, Sec. 9.3 case a, and the n x 10 s
   lesson of Sec. 12) and priority-road right of way (`right_of_way`, cases b and c).
+- `hsm`: the statechart core (hierarchical states, guarded transitions evaluated top-down, no-progress
+  timers driving each family's recovery); `situation`: its typed input (`Situation`) and output
+  (`BehaviourCommand`); `context`, `route_view`, `lanes`, `manoeuvre`, `intersection_map`,
+  `intersection_manager`: what the states read and compute.
+- One file per state family (Fig. 11): `drive` (DriveOnLane, LaneChange, DriveKTurn, PassObstacle),
+  `intersection` (Fig. 15 / Sec. 9.3), `zone` (a straight-line stand-in until the zone planner),
+  `recovery` (per family, global recovery, Replan).
+- `behaviour`: `Behaviour.step(situation) -> BehaviourCommand`, the whole layer as one object.
+- `diagram`: the hierarchy as one Mermaid or PNG diagram, generated from the code.
 - `bench`: `bywire bench urban` timings of the above and of the lateral controller.
 """

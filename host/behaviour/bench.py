@@ -1,4 +1,4 @@
-"""`bywire bench urban`: the moving-traffic check, the precedence manager and the lateral controller, timed.
+"""`bywire bench urban`: the moving-traffic check, precedence, the lateral controller and the HSM step, timed.
 
 Rows, measured interleaved in one run so that machine load hits all alike; each call is timed alone
 with `time.perf_counter_ns` and the distribution reported as p50 / p99 / max in microseconds:
@@ -9,7 +9,12 @@ with `time.perf_counter_ns` and the distribution reported as p50 / p99 / max in 
 - ``precedence_update``: one `IntersectionPrecedence.update` with three vehicles waiting and one in
   the box (the manager advances 0.1 s per call, as at 10 Hz);
 - ``lateral_step``: one `lateral_step` (projection onto a 30 m path stub sampled every 0.25 m, the
-  paper's "approximately 30 m ahead", plus eq. 21), with and without the s-hint window.
+  paper's "approximately 30 m ahead", plus eq. 21), with and without the s-hint window;
+- ``hsm_step``: one `Behaviour.step` (the hierarchical state machine with its MTC, precedence, object
+  projection and the command's stub) at a four-way stop of two crossing two-lane roads (`_HSM_RNDF`):
+  we approach from the west, stop and wait while three vehicles stand at the other stop lines and
+  cross in turn and a fourth follows us; the ego moves along the route closed by `longitudinal_step`
+  (0.05 s per call; a fresh run once through the intersection to the next checkpoint).
 
 Each row also gives ``ratio_p50``: its median over the baseline's. Contract (``--json``): ``{"rows":
 {name: {"p50_us", "p99_us", "max_us", "n", "ratio_p50"}}, "seconds"}``.
@@ -28,10 +33,164 @@ from typing import Any
 import numpy as np
 
 from bywire.host.lateral import LateralParams, PathSamples, VehiclePose, lateral_step
+from bywire.host.longitudinal import LongitudinalParams, LongitudinalState, longitudinal_step
+from bywire.host.roadnet.graph import build_graph
+from bywire.host.roadnet.mdf import parse_mdf, resolve_mission
+from bywire.host.roadnet.rndf import parse_rndf
+from bywire.host.roadnet.route import MissionPlanner
 
+from .behaviour import Behaviour
 from .mtc import ConflictVehicle, moving_traffic_check
 from .precedence import IntersectionPrecedence, StopLine, WaitingVehicle
 from .rules import MTC_SITUATIONS
+from .situation import EgoState, LaneRef, Situation, TrackedObject
+
+# Two crossing two-lane roads in local metres, stop signs on all four approaches (lane ends 8 m from
+# the centre, lanes 2 m either side of each centre line), 150 m arms.
+_HSM_RNDF = """RNDF_name\tbench_cross
+num_segments\t2
+num_zones\t0
+format_version\t1.0
+segment\t1
+num_lanes\t4
+lane\t1.1
+num_waypoints\t4
+checkpoint\t1.1.1\t1
+stop\t1.1.4
+exit\t1.1.4\t1.3.1
+1.1.1\t-150\t-2
+1.1.2\t-100\t-2
+1.1.3\t-50\t-2
+1.1.4\t-8\t-2
+end_lane
+lane\t1.2
+num_waypoints\t4
+stop\t1.2.4
+exit\t1.2.4\t1.4.1
+1.2.1\t150\t2
+1.2.2\t100\t2
+1.2.3\t50\t2
+1.2.4\t8\t2
+end_lane
+lane\t1.3
+num_waypoints\t3
+checkpoint\t1.3.3\t2
+1.3.1\t8\t-2
+1.3.2\t80\t-2
+1.3.3\t150\t-2
+end_lane
+lane\t1.4
+num_waypoints\t3
+1.4.1\t-8\t2
+1.4.2\t-80\t2
+1.4.3\t-150\t2
+end_lane
+end_segment
+segment\t2
+num_lanes\t4
+lane\t2.1
+num_waypoints\t3
+stop\t2.1.3
+exit\t2.1.3\t2.3.1
+2.1.1\t2\t-150
+2.1.2\t2\t-50
+2.1.3\t2\t-8
+end_lane
+lane\t2.2
+num_waypoints\t3
+stop\t2.2.3
+exit\t2.2.3\t2.4.1
+2.2.1\t-2\t150
+2.2.2\t-2\t50
+2.2.3\t-2\t8
+end_lane
+lane\t2.3
+num_waypoints\t2
+2.3.1\t2\t8
+2.3.2\t2\t150
+end_lane
+lane\t2.4
+num_waypoints\t2
+2.4.1\t-2\t-8
+2.4.2\t-2\t-150
+end_lane
+end_segment
+end_file
+"""
+_HSM_MDF = """MDF_name\tbench
+RNDF\tbench_cross
+checkpoints
+num_checkpoints\t2
+1
+2
+end_checkpoints
+speed_limits
+num_speed_limits\t2
+1\t0\t25
+2\t0\t25
+end_speed_limits
+end_file
+"""
+
+
+class _HsmScene:
+    """The ``hsm_step`` row's world (see the module docstring)."""
+
+    DT_S = 0.05
+    RESET_S = 60.0
+
+    def __init__(self) -> None:
+        net = parse_rndf(_HSM_RNDF, "bench_cross.rndf", coordinates="local_m")
+        mission = resolve_mission(net, parse_mdf(_HSM_MDF, "bench.mdf"))
+        self.graph = build_graph(net, mission)
+        self.planner = MissionPlanner(self.graph, mission)
+        self.lon_params = LongitudinalParams()
+        self._fresh()
+
+    def _fresh(self) -> None:
+        self.behaviour = Behaviour(self.planner)
+        self.view = self.behaviour.route_view
+        self.s = 60.0
+        self.v = 8.0
+        self.t = 0.0
+        self.lon = LongitudinalState()
+
+    def _objects(self) -> tuple[TrackedObject, ...]:
+        t = self.t
+        objs = []
+        # (id, stop line x, y, heading, departs at): they stand at their lines and cross in turn
+        for oid, x, y, h, t_go in (
+            ("east", 10.45, 2.0, math.pi, 8.0),
+            ("south", 2.0, -10.45, 0.5 * math.pi, 14.0),
+            ("north", -2.0, 10.45, -0.5 * math.pi, 20.0),
+        ):
+            gone = max(t - t_go, 0.0) * 5.0
+            objs.append(
+                TrackedObject(
+                    oid, x + gone * math.cos(h), y + gone * math.sin(h), h, 5.0 if gone else 0.0, 4.5, 1.8
+                )
+            )
+        follower_s = max(self.s - 25.0, 1.0)
+        fx, fy, fh = self.view.point_at(follower_s)
+        edge = self.view.edges[self.view.edge_index_at(follower_s)]
+        lane = LaneRef(
+            edge.key, follower_s - float(self.view.edge_start[self.view.edge_index_at(follower_s)])
+        )
+        objs.append(TrackedObject("behind", fx, fy, fh, self.v, 4.5, 1.8, lane))
+        return tuple(objs)
+
+    def step(self) -> object:
+        if self.t > self.RESET_S or self.behaviour.state == "MissionComplete":
+            self._fresh()
+        x, y, h = self.view.point_at(self.s)
+        sit = Situation(self.t, EgoState(x, y, h, self.v), self._objects())
+        cmd = self.behaviour.step(sit)
+        self.lon, a, _ = longitudinal_step(self.lon, cmd.longitudinal_inputs(self.v), self.lon_params)
+        self.v = max(self.v + a * self.DT_S, 0.0)
+        self.s += self.v * self.DT_S
+        self.t += self.DT_S
+        return cmd
+
 
 DEFAULT_SECONDS = 5.0
 BATCH = 200  # calls of one row before switching to the next (interleaving granularity)
@@ -92,6 +251,7 @@ def run(seconds: float, seed: int = 7) -> dict[str, Any]:
     ]
     snapshot = [WaitingVehicle("e", "E", -3.0), WaitingVehicle("n", "N", -2.0), WaitingVehicle("w", "W", 5.0)]
     state: dict[str, Any] = {"pm": None, "t": 0.0}
+    scene = _HsmScene()
 
     def precedence_update(_i: int) -> object:
         if state["pm"] is None or state["t"] > 70.0:  # a fresh intersection every minute of its clock
@@ -110,6 +270,7 @@ def run(seconds: float, seed: int = 7) -> dict[str, Any]:
         "lateral_step_hinted": lambda i: lateral_step(
             path, poses[i % 512], 1, lat_params, s_hint_m=poses[i % 512].x_m, window_m=3.0
         ),
+        "hsm_step": lambda i: scene.step(),
     }
     samples: dict[str, list[int]] = {name: [] for name in rows}
     for fn in rows.values():  # warm-up: imports, caches

@@ -25,6 +25,10 @@ margin, and D_X2 is that plus the vehicle's own length (the rear bumper leaving 
 Where the rules ask for 8 m fore and aft (rules 5.2, passing and pulling into traffic) the other
 vehicle's window is at least 8 m on each side of MP.
 
+The hierarchical state machine's constants (trigger distances, speeds, stillness, no-progress times,
+the K-turn and passing geometry) follow the parameter sets; each names its source and unit, and the
+ones of AnnieWAY's published planner (`aw_ChsmPlanner.hpp`) are marked "AnnieWAY code".
+
 Every standard set is checked against rules 5.2 ("Vehicle should pull into the traffic lane when
 oncoming vehicles leave a gap of at least 10 seconds") in tests/test_behaviour_rules.py: standing
 at the stop line, the MTC must find a moment to go inside a 10 s gap of a 30 mph stream.
@@ -40,25 +44,82 @@ from types import MappingProxyType
 from typing import Final
 
 __all__ = [
+    "BLOCKADE_RANGE_M",
+    "BLOCKADE_STILL_S",
+    "CHECKPOINT_TOLERANCE_M",
+    "CONFLICT_DISTANCE_M",
+    "CURVE_LATERAL_ACCEL_MPS2",
+    "DRIVE_NO_PROGRESS_S",
     "FOLLOW_GAP_AT_15MPH_MAX_M",
     "FOLLOW_GAP_AT_15MPH_MIN_M",
+    "GLOBAL_REPLAN_INTERVAL_S",
+    "INTERSECTION_APPROACH_TRIGGER_M",
     "INTERSECTION_BOX_STUCK_S",
+    "INTERSECTION_DECISION_M",
+    "INTERSECTION_MAX_CROSSING_M",
+    "INTERSECTION_MIN_WAIT_S",
+    "INTERSECTION_NO_PROGRESS_S",
+    "INTERSECTION_SPEED_MPS",
+    "KTURN_RADIUS_M",
+    "KTURN_SPEED_MPS",
+    "KTURN_SWITCH_DISTANCE_M",
+    "KTURN_TRIGGER_M",
+    "LANE_CHANGE_TRIGGER_M",
+    "LATERAL_CLEARANCE_M",
+    "LEAD_HORIZON_M",
     "MAX_EXCESS_DELAY_S",
+    "MAX_MICROSTEPS",
     "MERGE_GAP_ACCEPT_S",
     "MERGE_SPACING_M",
     "MPH10_MPS",
     "MPH_MPS",
+    "MTC_APPROACH_HORIZON_M",
     "MTC_SITUATIONS",
+    "OFF_TRACK_M",
+    "PASSAT_REAR_AXLE_TO_FRONT_M",
     "PASSAT_VARIANT_LENGTH_M",
     "PASSAT_WHEELBASE_M",
+    "PASSAT_WIDTH_M",
     "PASSING_MANEUVER_MAX_LENGTH_M",
     "PASSING_SEPARATION_M",
+    "PASS_NO_INTERSECTION_M",
+    "PASS_SHIFT_LENGTH_M",
+    "PASS_SPEED_MPS",
+    "PASS_STILL_S",
+    "PAUSE_MOVED_RESET_M",
     "PRECEDENCE_STUCK_S",
     "PRECEDENCE_TIE_S",
+    "PRIO_STOP_DECEL_MPS2",
+    "PROGRESS_DISTANCE_M",
+    "QUEUE_GAP_M",
+    "RECOVERY_CREEP_SPEED_MPS",
+    "RECOVERY_LEAP_M",
+    "RECOVERY_NO_PROGRESS_S",
+    "RECOVERY_SETTLE_S",
+    "RECOVERY_SUCCESS_M",
+    "SPEED_ANTICIPATION_DECEL_MPS2",
     "SPEED_LIMIT_MAX_MPS",
+    "SPOT_SPEED_MPS",
+    "STILL_DISPLACEMENT_M",
+    "STILL_SPEED_MPS",
+    "STOOD_BEHIND_MAX_GAP_M",
     "STOPPED_LEAD_GAP_MAX_M",
     "STOPPED_LEAD_GAP_MIN_M",
+    "STOPPED_LEAD_STANDOFF_M",
+    "STOPPED_SPEED_MPS",
+    "STOP_LINE_HEADING_RAD",
+    "STOP_LINE_LATERAL_M",
+    "STOP_LINE_PAST_M",
     "STOP_LINE_TOLERANCE_M",
+    "STOP_LINE_ZONE_M",
+    "STUB_BACK_M",
+    "STUB_LENGTH_M",
+    "TRAFFIC_NEAR_M",
+    "ZONE_APPROACH_TRIGGER_M",
+    "ZONE_NO_PROGRESS_S",
+    "ZONE_PARK_DWELL_S",
+    "ZONE_SPEED_MAX_MPS",
+    "ZONE_SPOT_ALIGN_M",
     "MtcParams",
     "MtcSituation",
     "forward_following_distance_m",
@@ -101,6 +162,124 @@ MERGE_SPACING_M: Final = 8.0  # rules 5.2 Advanced traffic: 8 m fore and aft whi
 MERGE_GAP_ACCEPT_S: Final = 10.0  # rules 5.2: must pull in when oncoming traffic leaves a 10 s gap
 PASSING_SEPARATION_M: Final = 8.0  # rules 5.2 Basic navigation: 8 m fore and aft when passing
 PASSING_MANEUVER_MAX_LENGTH_M: Final = 40.0  # rules 5.2: leave lane, pass and return within 40 m
+
+
+# --- the vehicle as behaviour sees it (ours, from the B6 Variant's data sheet) -----------------------------
+# The pose of a `Situation` is the rear axle (the lateral controller's reference point, Sec. 11.1); the
+# rules judge the front bumper. 4.77 m = 0.95 m front overhang + 2.72 m wheelbase + 1.10 m rear overhang.
+PASSAT_REAR_AXLE_TO_FRONT_M: Final = 2.72 + 0.95
+PASSAT_WIDTH_M: Final = 1.82  # body without mirrors
+
+# --- the hierarchical state machine (behaviour.py and its state families) ---------------------------------
+# "AnnieWAY code" below: the constants of `aw_ChsmPlanner.hpp` (the published planner); we took values.
+
+# Path stub handed to the controllers: "reaches approximately 30 m ahead" (seed 000 Sec. 8). It starts a
+# little behind the rear axle so that the controller's projection always falls inside it (AnnieWAY code:
+# `center_line_back_sample_length`).
+STUB_LENGTH_M: Final = 30.0
+STUB_BACK_M: Final = 2.0
+MAX_MICROSTEPS: Final = 16  # AnnieWAY code: > 16 transitions in one cycle = "errornous transitions"
+
+# Speeds. Curves: 2 m/s² lateral, what a passenger accepts (the route planner's `RouteCosts` uses the
+# same); a lower speed ahead (curve, limit, stop) is anticipated with 1 m/s² (ours: comfortable).
+CURVE_LATERAL_ACCEL_MPS2: Final = 2.0
+SPEED_ANTICIPATION_DECEL_MPS2: Final = 1.0
+INTERSECTION_SPEED_MPS: Final = MPH10_MPS  # ours: the MTC's manoeuvre speed v_d (rules.MTC_SITUATIONS)
+ZONE_SPEED_MAX_MPS: Final = 5.0 * MPH_MPS  # ours: below the MDF zone limit of the sample (5-10 mph)
+SPOT_SPEED_MPS: Final = 0.5 * ZONE_SPEED_MAX_MPS  # ours: into and out of a parking spot
+KTURN_SPEED_MPS: Final = 1.5  # ours (AnnieWAY code: 2 m/s); each leg ends in a stop
+PASS_SPEED_MPS: Final = 3.0  # ours: the 12 m shift below peaks at 1.3 m/s² lateral at this speed
+RECOVERY_CREEP_SPEED_MPS: Final = 1.0  # ours: a recovery moves at walking pace
+
+# Standstill and stillness. A vehicle "has stopped" below 0.2 m/s (AnnieWAY code: 0.1 m/s; ours doubles
+# it for the speed noise of a tracker); an object is "still" while slower than 0.3 m/s and within 1 m
+# of where it came to rest (a parked car's track jitters by decimetres).
+STOPPED_SPEED_MPS: Final = 0.2
+STILL_SPEED_MPS: Final = 0.3
+STILL_DISPLACEMENT_M: Final = 1.0
+
+# Objects on our path. Lead vehicles are looked for this far ahead (ours: at 30 mph DARPA's following
+# distance is 19 m, the stopping distance at 1 m/s² 90 m); an object is in our way when its body comes
+# within this clearance of ours, laterally (ours: 0.3 m, a tracker's width error).
+LEAD_HORIZON_M: Final = 100.0
+LATERAL_CLEARANCE_M: Final = 0.3
+# Behind a stopped lead we stop in the middle of the rules' 5-10 m band (rules 5.2); we "stand behind"
+# it (the passing and blockade timers run) while its rear is at most 10 m + 3 m (ours: the stopping
+# controller's reach) ahead of our front bumper.
+STOPPED_LEAD_STANDOFF_M: Final = 0.5 * (STOPPED_LEAD_GAP_MIN_M + STOPPED_LEAD_GAP_MAX_M)
+STOOD_BEHIND_MAX_GAP_M: Final = STOPPED_LEAD_GAP_MAX_M + 3.0
+TRAFFIC_NEAR_M: Final = 60.0  # ours: moving vehicles this close mean we wait on traffic, not stuck
+
+# Intersections (seed 000 Sec. 9.3; AnnieWAY code TRIGGER_DIST_APPROACH_INTERSECTION 55 m,
+# TRIGGER_DIST_BLINK 30 m where the turn is decided and signalled, MIN_WAIT_STOPLINE 0.5 s).
+INTERSECTION_APPROACH_TRIGGER_M: Final = 55.0
+INTERSECTION_DECISION_M: Final = 30.0
+INTERSECTION_MIN_WAIT_S: Final = 1.0  # ours: a full stop a human sees as one, well inside rules' 10 s
+INTERSECTION_MAX_CROSSING_M: Final = 40.0  # ours: a crossing edge longer than this ends the box here
+# A vehicle is "at" a stop line when it has stopped with its front bumper at most 3 m before it (a car
+# stops 0-1 m short); pulling away it stays there until its front is 3 m past the line, where its
+# centre is inside the box (the hull of the intersection's waypoints, through the stop lines). Ours.
+STOP_LINE_ZONE_M: Final = 3.0
+STOP_LINE_PAST_M: Final = 3.0
+STOP_LINE_LATERAL_M: Final = 2.0  # ... within half a lane of its lane's centre line
+STOP_LINE_HEADING_RAD: Final = math.radians(45.0)  # ... and facing along it
+# Paths of two lanes come into conflict where their centre lines come closer than this (ours: two 1.8 m
+# wide cars on centre lines 2.5 m apart leave 0.7 m; parallel lanes are 3.7 m apart and never conflict).
+CONFLICT_DISTANCE_M: Final = 2.5
+# Priority vehicles farther than this from the merge point are not checked (ours: the 10 s gap of rules
+# 5.2 at 30 mph is 134 m).
+MTC_APPROACH_HORIZON_M: Final = 150.0
+# Case b turns into case c (IntersectionPrioDriveInside -> IntersectionPrioStop) only while we can still
+# stop before the oncoming lane with this deceleration ("point of no return", ours: firm, not hard).
+PRIO_STOP_DECEL_MPS2: Final = 2.0
+
+# Lane changes, passing, blockades (rules 5.2; AnnieWAY code MIN_WAIT_OBSTACLE / MIN_WAIT_PARKED 5 s,
+# VEHICLE_STAND_TILL_BLOCKADE_TIME 10 s, TRIGGER_DIST_KTURN 20 m).
+# ours (AnnieWAY code: 15 m): a change the MTC refuses stops at its start, from 10 m/s at 1.25 m/s².
+LANE_CHANGE_TRIGGER_M: Final = 40.0
+PASS_STILL_S: Final = 5.0  # a vehicle still this long is parked or stalled: we may pass it
+BLOCKADE_STILL_S: Final = MAX_EXCESS_DELAY_S  # still this long and not passable: the road is blocked
+BLOCKADE_RANGE_M: Final = 30.0  # ours: only an obstacle this close ahead can be judged a blockade
+# Passing: leave the lane over 12 m (a quintic shift of one lane, 3.7 m: its second derivative peaks
+# at 5.77 * 3.7 / 12² = 0.15 1/m, the path's curvature a little below), stay out until our rear axle
+# is PASSING_SEPARATION_M past the obstacle's front, come back over 12 m: from a stop 7.5 m behind a
+# 4.8 m car that is 35 m, inside the 40 m of rules 5.2.
+PASS_SHIFT_LENGTH_M: Final = 12.0
+# rules 1.7: "Vehicles must not pass other vehicles queued at an intersection": a still vehicle whose
+# front is this close to the next stop line or intersection on our route (or to a still vehicle that
+# is itself queued) is queued (ours: 15 m, three car lengths of gap).
+QUEUE_GAP_M: Final = 15.0
+PASS_NO_INTERSECTION_M: Final = 40.0  # ours: no passing manoeuvre ends closer than this to an intersection
+KTURN_TRIGGER_M: Final = 20.0  # AnnieWAY code TRIGGER_DIST_KTURN
+KTURN_RADIUS_M: Final = 5.5  # ours: atan(2.72 / 5.5) = 26 deg of steer, 4 deg below the lock for control
+KTURN_SWITCH_DISTANCE_M: Final = 0.5  # ours: a leg of the K-turn ends within this of its end point
+
+# Zones: the stand-in path (zone.py) lines up with a spot this far before its first waypoint (ours: the
+# orbital controller halves an error every 3 m, so 8 m takes out 85 % of a misalignment).
+ZONE_APPROACH_TRIGGER_M: Final = 30.0  # ours (AnnieWAY code: 10 m): time to slow down to zone speed
+ZONE_SPOT_ALIGN_M: Final = 8.0
+ZONE_PARK_DWELL_S: Final = 1.0  # ours: stand at the checkpoint in the spot, then back out
+CHECKPOINT_TOLERANCE_M: Final = 0.5  # ours: the front bumper "passes over" a checkpoint within this
+
+# No progress and recovery (seed 000 Sec. 8: "Most states implement a recovery state that is activated
+# whenever the car makes no progress at all for a certain amount of time"). Progress is 0.5 m of travel
+# (AnnieWAY code RECOVERY_PROGRESS_INDICATOR) or waiting on moving traffic. The times are ours, in
+# multiples of the rules' 10 s of excess delay (rules 5.2): Drive 3 x (its own obstacle logic decides
+# within BLOCKADE_STILL_S); Intersection 6 x (three other approaches each get their full
+# PRECEDENCE_STUCK_S turn, a vehicle may stall in the box INTERSECTION_BOX_STUCK_S, plus 10 s);
+# a recovery gets 2 x before the global recovery takes over. (AnnieWAY's code had these disabled:
+# RECOVERY_TIMEOUT 100000 s.)
+PROGRESS_DISTANCE_M: Final = 0.5
+DRIVE_NO_PROGRESS_S: Final = 3.0 * MAX_EXCESS_DELAY_S
+INTERSECTION_NO_PROGRESS_S: Final = 3.0 * PRECEDENCE_STUCK_S + INTERSECTION_BOX_STUCK_S + MAX_EXCESS_DELAY_S
+ZONE_NO_PROGRESS_S: Final = 3.0 * MAX_EXCESS_DELAY_S
+RECOVERY_NO_PROGRESS_S: Final = 2.0 * MAX_EXCESS_DELAY_S
+RECOVERY_SETTLE_S: Final = 0.5  # AnnieWAY code MIN_WAIT_FOR_OBSTACLEMAP: stand still, look, then act
+RECOVERY_SUCCESS_M: Final = 5.0  # ours: a recovery has worked once we made this much headway
+RECOVERY_LEAP_M: Final = 15.0  # AnnieWAY code FROG_MODE_LEAP_DIST: an obstacle this close blocks the road
+GLOBAL_REPLAN_INTERVAL_S: Final = 5.0  # AnnieWAY code GETBACKONTRACK_REPLAN_INTERVAL
+OFF_TRACK_M: Final = 5.0  # ours: farther than this from the route, we are not on it any more
+PAUSE_MOVED_RESET_M: Final = 10.0  # AnnieWAY code TRIGGER_DIST_CLEAR_HISTORY: moved in PAUSE -> re-localise
 
 
 def forward_following_distance_m(
