@@ -54,6 +54,7 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 from bywire.ecu.calibration import (
     BRAKE_BAR_MAX,
@@ -70,14 +71,17 @@ __all__ = [
     "ControllerOutput",
     "ControllerState",
     "PedalMode",
+    "SpeedTerms",
     "brake_accel_min_mps2",
     "brake_bar",
     "coast_accel_mps2",
+    "controller_cycle",
     "controller_passive",
     "controller_step",
     "initial_controller_state",
     "jerk_limit",
     "rate_limit",
+    "speed_terms",
     "steer_step",
     "step_dt_s",
     "throttle_accel_max_mps2",
@@ -254,6 +258,60 @@ def controller_passive(now_s: float, accel_meas_mps2: float, cal: Calibration) -
     return ControllerState(now_s, a, a, 0.0, _NONE, -math.inf)
 
 
+class SpeedTerms(NamedTuple):
+    """The map values that depend on the speed alone, for one calibration: what `controller_step`
+    needs of the maps apart from the throttle map's acceleration axis."""
+
+    cal: Calibration
+    speed_mps: float
+    coast_accel_mps2: float  # coast_accel_mps2(cal.coast_map, speed)
+    throttle_top_accel_mps2: float  # throttle_accel_max_mps2(cal.throttle_map, speed)
+    brake_min_accel_mps2: float  # brake_accel_min_mps2(cal, speed)
+    row: int  # the throttle map's speed cell: rows row and row + 1 ...
+    row_w: float  # ... blended with this weight
+
+
+def speed_terms(cal: Calibration, speed_mps: float) -> SpeedTerms:
+    """The speed-dependent map values, computed exactly as the functions named in SpeedTerms do."""
+    global _last_terms
+    t = _last_terms
+    if t is not None and t.speed_mps == speed_mps and t.cal is cal:
+        return t
+    tm = cal.throttle_map
+    a_coast = coast_accel_mps2(cal.coast_map, speed_mps)
+    row, row_w = _cell(tm.speed_mps, speed_mps)
+    t = _last_terms = SpeedTerms(
+        cal,
+        speed_mps,
+        a_coast,
+        throttle_accel_max_mps2(tm, speed_mps),
+        a_coast - cal.brake_map.decel_top_mps2,
+        row,
+        row_w,
+    )
+    return t
+
+
+# One entry: the speed comes from a 100 Hz report, the controller runs at 1 kHz, so the same
+# speed is asked for ten times in a row. Keyed by the (frozen) calibration's identity and the
+# speed's value, it returns what the computation would; it never changes a result.
+_last_terms: SpeedTerms | None = None
+
+
+def _throttle_pct_at(m: ThrottleMap, terms: SpeedTerms, accel_mps2: float) -> float:
+    """`throttle_pct(m, accel_mps2, terms.speed_mps)`, with the speed cell already known."""
+    i, wv = terms.row, terms.row_w
+    j, wa = _cell(m.accel_mps2, accel_mps2)
+    r0 = m.pct[i]
+    r1 = m.pct[i + 1]
+    p0 = r0[j] + (r0[j + 1] - r0[j]) * wa
+    p1 = r1[j] + (r1[j + 1] - r1[j]) * wa
+    p = p0 + (p1 - p0) * wv
+    if p <= 0.0:
+        return 0.0
+    return p if p < THROTTLE_PCT_MAX else THROTTLE_PCT_MAX
+
+
 def controller_step(
     st: ControllerState,
     *,
@@ -271,7 +329,31 @@ def controller_step(
     closed_loop: accel_meas_mps2 and speed_mps are trusted (else speed_mps is an estimate and the
     loop runs on feedforward); throttle_allowed: False in stops (propulsion never helps a stop);
     hold: force the standstill hold (a stop that has reached standstill)."""
-    dt = step_dt_s(st.t_s, now_s)
+    new, thr, brk, pedal, a_tgt, a_cmd, i = controller_cycle(
+        st, now_s, accel_request_mps2, accel_meas_mps2, speed_mps, closed_loop, throttle_allowed, hold, cal
+    )
+    return new, ControllerOutput(thr, brk, pedal, a_tgt, a_cmd, i)
+
+
+def controller_cycle(
+    st: ControllerState,
+    now_s: float,
+    accel_request_mps2: float,
+    accel_meas_mps2: float,
+    speed_mps: float,
+    closed_loop: bool,
+    throttle_allowed: bool,
+    hold: bool,
+    cal: Calibration,
+) -> tuple[ControllerState, float, float, PedalMode, float, float, float]:
+    """`controller_step` for the 1 kHz loop: the same computation, arguments by position, and the
+    output as the tuple (state, throttle_pct, brake_bar, pedal, accel_target_mps2, accel_cmd_mps2,
+    integrator_mps2) rather than a ControllerOutput (one object less per cycle)."""
+    dt = now_s - st.t_s  # step_dt_s, inline
+    if dt <= 0.0:
+        dt = 0.0
+    elif not dt < DT_MAX_S:
+        dt = DT_MAX_S
     if closed_loop and not math.isfinite(accel_meas_mps2):
         closed_loop = False
 
@@ -284,7 +366,8 @@ def controller_step(
     a_tgt = jerk_limit(a_prev, a_req, dt, cal.jerk_max_mps3)
 
     v = speed_mps if speed_mps > 0.0 else 0.0
-    a_coast = coast_accel_mps2(cal.coast_map, v)
+    terms = speed_terms(cal, v)
+    a_coast = terms.coast_accel_mps2
     # Standstill is only believed when measured: an open-loop estimate reaching zero is not a stop.
     holding = hold or (closed_loop and v < cal.standstill_speed_mps and a_tgt <= 0.0)
     pedal = st.pedal
@@ -303,10 +386,10 @@ def controller_step(
         saturated = False
         if pedal == _THROTTLE:
             if di > 0.0:
-                head = throttle_accel_max_mps2(cal.throttle_map, v) - a_tgt
+                head = terms.throttle_top_accel_mps2 - a_tgt
                 saturated = a_cmd0 >= a_tgt + head - _EPS
         elif di < 0.0:
-            head = brake_accel_min_mps2(cal, v) - a_tgt
+            head = terms.brake_min_accel_mps2 - a_tgt
             saturated = a_cmd0 <= a_tgt + head + _EPS
         else:  # a brake at zero is saturated only where the throttle may not take over (a stop)
             saturated = not throttle_allowed and a_cmd0 >= a_coast - _EPS
@@ -350,11 +433,8 @@ def controller_step(
     if holding:
         thr, brk, out_pedal = 0.0, cal.hold_brake_bar, _HOLD
     elif new_pedal == _THROTTLE:
-        thr, brk, out_pedal = throttle_pct(cal.throttle_map, a_cmd, v), 0.0, new_pedal
+        thr, brk, out_pedal = _throttle_pct_at(cal.throttle_map, terms, a_cmd), 0.0, new_pedal
     else:
         thr, brk, out_pedal = 0.0, brake_bar(cal.brake_map, a_coast - a_cmd), new_pedal
 
-    return (
-        ControllerState(now_s, a_tgt, a_ref, i, new_pedal, switch_t),
-        ControllerOutput(thr, brk, out_pedal, a_tgt, a_cmd, i),
-    )
+    return ControllerState(now_s, a_tgt, a_ref, i, new_pedal, switch_t), thr, brk, out_pedal, a_tgt, a_cmd, i

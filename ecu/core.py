@@ -42,13 +42,13 @@ ECU "assumes standstill after v0/d + margin" (plus the ramp).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from bywire.ecu.accel_controller import (
     ControllerState,
     PedalMode,
+    controller_cycle,
     controller_passive,
-    controller_step,
     initial_controller_state,
     steer_step,
     step_dt_s,
@@ -58,8 +58,9 @@ from bywire.ecu.safety import (
     STOP_STATES,
     EcuInputs,
     SafetyState,
+    active_fault_bits,
     initial_safety_state,
-    safety_step,
+    safety_transition,
     vehicle_usable,
 )
 from bywire.protocol.ecu_types import EcuState, Fault, RequestFlags
@@ -69,8 +70,10 @@ __all__ = [
     "ActuatorCommand",
     "CoreState",
     "EcuInputs",
+    "InputVerdict",
     "core_step",
     "initial_core_state",
+    "judge_inputs",
     "stop_decel_mps2",
     "stop_time_bound_s",
 ]
@@ -120,6 +123,29 @@ class ActuatorCommand:
     holding: bool  # a stop has reached standstill and holds
 
 
+@dataclass(frozen=True, slots=True)
+class InputVerdict:
+    """What the core concludes from one inputs object under one calibration: the active fault
+    bits and whether the vehicle data is usable. Both are functions of the two frozen objects
+    alone, so the same objects always give the same verdict: the executive passes the same
+    inputs object for as long as nothing was received and nothing fresh expired (nine cycles in
+    ten), and the core reuses the verdict instead of judging the same values again."""
+
+    inputs: EcuInputs
+    cal: Calibration
+    active: int  # safety.active_fault_bits(inputs, cal)
+    faults: Fault  # the same bits as a Fault, for the command
+    usable: bool  # safety.vehicle_usable(inputs)
+    steer_requested: bool  # the request's STEER flag
+
+
+def judge_inputs(inp: EcuInputs, cal: Calibration) -> InputVerdict:
+    active = active_fault_bits(inp, cal)
+    return InputVerdict(
+        inp, cal, active, _fault(active), vehicle_usable(inp), bool(int(inp.request_flags) & _STEER)
+    )
+
+
 @fast_frozen_init
 @dataclass(frozen=True, slots=True)
 class CoreState:
@@ -133,6 +159,9 @@ class CoreState:
     speed_trusted_t_s: float  # when the speed was last measured (-inf: never)
     stop_decel_mps2: float  # the current stop's deceleration (the largest cause so far)
     stop_deadline_s: float  # the current stop holds at the latest then (inf: no stop)
+    # The last cycle's verdict on its inputs (None at boot): reused while the inputs are the same
+    # object. A cache, not state: it never changes what a cycle computes.
+    verdict: InputVerdict | None = field(compare=False, repr=False)
 
 
 def initial_core_state(now_s: float) -> CoreState:
@@ -148,6 +177,7 @@ def initial_core_state(now_s: float) -> CoreState:
         speed_trusted_t_s=-_INF,
         stop_decel_mps2=0.0,
         stop_deadline_s=_INF,
+        verdict=None,
     )
 
 
@@ -189,48 +219,55 @@ def core_step(
 ) -> tuple[CoreState, ActuatorCommand]:
     """One ECU cycle. `cal` must always be a Calibration: with `inp.calibration_valid` False the
     executive passes its fallback (default_calibration()) and the core stops or stays OFF."""
-    saf, active = safety_step(st.safety, inp, cal)
+    verdict = st.verdict
+    if verdict is None or verdict.inputs is not inp or verdict.cal is not cal:
+        verdict = judge_inputs(inp, cal)
+    active = verdict.active
+    saf = safety_transition(st.safety, inp, active, cal)
     s = saf.state
-    ok = vehicle_usable(inp)
+    ok = verdict.usable
     if ok:
         v_est, trusted_t = inp.speed_mps, now_s
     else:
         v_est, trusted_t = st.speed_est_mps, st.speed_trusted_t_s
 
+    # The 1 kHz path: the controller by position, its output as a tuple, and the command built by
+    # position (field order of ActuatorCommand, named in the comments): building these objects is
+    # most of a cycle's cost, and keywords cost almost as much again.
     if s == _ENGAGED:
-        ctl, out = controller_step(
+        ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
             st.controller,
-            now_s=now_s,
-            accel_request_mps2=inp.request_accel_mps2,
-            accel_meas_mps2=inp.accel_meas_mps2,
-            speed_mps=inp.speed_mps,
-            closed_loop=True,
-            throttle_allowed=True,
-            hold=False,
-            cal=cal,
+            now_s,
+            inp.request_accel_mps2,
+            inp.accel_meas_mps2,
+            inp.speed_mps,
+            True,  # closed_loop
+            True,  # throttle_allowed
+            False,  # hold
+            cal,
         )
-        if int(inp.request_flags) & _STEER:
+        if verdict.steer_requested:
             dt = step_dt_s(st.controller.t_s, now_s)
             steer, steer_en = steer_step(st.steer_angle_rad, inp.request_steer_angle_rad, dt, cal), True
         else:
             steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
-        new = CoreState(saf, ctl, steer, steer_en, False, False, v_est, trusted_t, 0.0, _INF)
+        new = CoreState(saf, ctl, steer, steer_en, False, False, v_est, trusted_t, 0.0, _INF, verdict)
         cmd = ActuatorCommand(
-            state=s,
-            faults_active=_fault(active),
-            faults_latched=saf.latched,
-            throttle_pct=out.throttle_pct,
-            brake_bar=out.brake_bar,
-            steer_angle_rad=steer,
-            engage=True,
-            steer_enable=steer_en,
-            ignition=True,
-            park_brake=False,
-            accel_target_mps2=out.accel_target_mps2,
-            accel_cmd_mps2=out.accel_cmd_mps2,
-            integrator_mps2=out.integrator_mps2,
-            pedal=out.pedal,
-            holding=False,
+            s,  # state
+            verdict.faults,  # faults_active
+            saf.latched,  # faults_latched
+            thr,  # throttle_pct
+            brk,  # brake_bar
+            steer,  # steer_angle_rad
+            True,  # engage
+            steer_en,  # steer_enable
+            True,  # ignition
+            False,  # park_brake
+            a_tgt,  # accel_target_mps2
+            a_cmd,  # accel_cmd_mps2
+            integ,  # integrator_mps2
+            pedal,  # pedal
+            False,  # holding
         )
         return new, cmd
 
@@ -251,19 +288,19 @@ def core_step(
                 decel = st.stop_decel_mps2
         if (ok and inp.speed_mps < cal.standstill_speed_mps) or now_s >= deadline:
             holding = True
-        ctl, out = controller_step(
+        ctl, _, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
             st.controller,
-            now_s=now_s,
-            accel_request_mps2=-decel,
-            accel_meas_mps2=inp.accel_meas_mps2 if ok else 0.0,
-            speed_mps=inp.speed_mps if ok else v_est,
-            closed_loop=ok,
-            throttle_allowed=False,
-            hold=holding,
-            cal=cal,
+            now_s,
+            -decel,  # accel_request_mps2
+            inp.accel_meas_mps2 if ok else 0.0,  # accel_meas_mps2
+            inp.speed_mps if ok else v_est,  # speed_mps
+            ok,  # closed_loop
+            False,  # throttle_allowed
+            holding,  # hold
+            cal,
         )
         if blind and not holding:
-            v_est += out.accel_target_mps2 * step_dt_s(st.controller.t_s, now_s)
+            v_est += a_tgt * step_dt_s(st.controller.t_s, now_s)
             if v_est < 0.0:
                 v_est = 0.0
         off = s == _DISABLED and holding
@@ -271,45 +308,45 @@ def core_step(
             steer, steer_en = st.steer_angle_rad, True
         else:
             steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
-        new = CoreState(saf, ctl, steer, steer_en, holding, blind, v_est, trusted_t, decel, deadline)
+        new = CoreState(saf, ctl, steer, steer_en, holding, blind, v_est, trusted_t, decel, deadline, verdict)
         cmd = ActuatorCommand(
-            state=s,
-            faults_active=_fault(active),
-            faults_latched=saf.latched,
-            throttle_pct=0.0,
-            brake_bar=out.brake_bar,
-            steer_angle_rad=steer,
-            engage=True,
-            steer_enable=steer_en,
-            ignition=not off,
-            park_brake=off,
-            accel_target_mps2=out.accel_target_mps2,
-            accel_cmd_mps2=out.accel_cmd_mps2,
-            integrator_mps2=out.integrator_mps2,
-            pedal=out.pedal,
-            holding=out.pedal == _HOLD,
+            s,  # state
+            verdict.faults,  # faults_active
+            saf.latched,  # faults_latched
+            0.0,  # throttle_pct: a stop never uses the throttle
+            brk,  # brake_bar
+            steer,  # steer_angle_rad
+            True,  # engage
+            steer_en,  # steer_enable
+            not off,  # ignition
+            off,  # park_brake
+            a_tgt,  # accel_target_mps2
+            a_cmd,  # accel_cmd_mps2
+            integ,  # integrator_mps2
+            pedal,  # pedal
+            pedal == _HOLD,  # holding
         )
         return new, cmd
 
     # OFF, READY, MANUAL: hands off.
     ctl = controller_passive(now_s, inp.accel_meas_mps2 if ok else 0.0, cal)
     steer = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal)
-    new = CoreState(saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF)
+    new = CoreState(saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF, verdict)
     cmd = ActuatorCommand(
-        state=s,
-        faults_active=_fault(active),
-        faults_latched=saf.latched,
-        throttle_pct=0.0,
-        brake_bar=0.0,
-        steer_angle_rad=steer,
-        engage=False,
-        steer_enable=False,
-        ignition=True,
-        park_brake=False,
-        accel_target_mps2=ctl.accel_target_mps2,
-        accel_cmd_mps2=ctl.accel_target_mps2,
-        integrator_mps2=0.0,
-        pedal=_NONE,
-        holding=False,
+        s,  # state
+        verdict.faults,  # faults_active
+        saf.latched,  # faults_latched
+        0.0,  # throttle_pct
+        0.0,  # brake_bar
+        steer,  # steer_angle_rad
+        False,  # engage
+        False,  # steer_enable
+        True,  # ignition
+        False,  # park_brake
+        ctl.accel_target_mps2,  # accel_target_mps2
+        ctl.accel_target_mps2,  # accel_cmd_mps2
+        0.0,  # integrator_mps2
+        _NONE,  # pedal
+        False,  # holding
     )
     return new, cmd

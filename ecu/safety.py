@@ -55,11 +55,13 @@ __all__ = [
     "STOP_STATES",
     "EcuInputs",
     "SafetyState",
+    "active_fault_bits",
     "active_faults",
     "driver_intervention",
     "engage_allowed",
     "initial_safety_state",
     "safety_step",
+    "safety_transition",
     "vehicle_usable",
 ]
 
@@ -172,7 +174,8 @@ def driver_intervention(inp: EcuInputs, cal: Calibration) -> bool:
     )
 
 
-def _active(inp: EcuInputs, cal: Calibration) -> int:
+def active_fault_bits(inp: EcuInputs, cal: Calibration) -> int:
+    """This cycle's fault conditions as plain int bits (`active_faults` as a Fault)."""
     f = 0
     if not inp.host_alive:
         f |= _HOST_HEARTBEAT
@@ -202,6 +205,9 @@ def _active(inp: EcuInputs, cal: Calibration) -> int:
     return f
 
 
+_active = active_fault_bits
+
+
 def active_faults(inp: EcuInputs, cal: Calibration) -> Fault:
     """This cycle's fault conditions (independent of the state)."""
     return Fault(_active(inp, cal))
@@ -221,6 +227,15 @@ def engage_allowed(inp: EcuInputs, cal: Calibration) -> bool:
 def safety_step(st: SafetyState, inp: EcuInputs, cal: Calibration) -> tuple[SafetyState, int]:
     """One cycle of the state machine; returns the new state and the active fault bits (int)."""
     a = _active(inp, cal)
+    return safety_transition(st, inp, a, cal), a
+
+
+def safety_transition(st: SafetyState, inp: EcuInputs, a: int, cal: Calibration) -> SafetyState:
+    """The state machine's transition for this cycle, given `a = active_fault_bits(inp, cal)`.
+
+    Split from `safety_step` so that a caller that already judged these inputs (the core reuses
+    the verdict while the executive passes it the same inputs object) does not judge them again;
+    the transition itself still runs every cycle. Returns `st` itself when nothing changed."""
     flags = int(inp.request_flags)
     rearm = bool(flags & _REARM)
     rearm_edge = rearm and not st.rearm_prev
@@ -275,8 +290,8 @@ def safety_step(st: SafetyState, inp: EcuInputs, cal: Calibration) -> tuple[Safe
             new, latched = _READY, Fault.NONE
 
     if new == s and latched == st.latched and rearm == st.rearm_prev and inp.unlatch == st.unlatch_prev:
-        return st, a  # the common case: nothing changed, no allocation
-    return SafetyState(new, latched, rearm, inp.unlatch), a
+        return st  # the common case: nothing changed, no allocation
+    return SafetyState(new, latched, rearm, inp.unlatch)
 
 
 def _ready_or_off(active: int) -> tuple[EcuState, Fault]:

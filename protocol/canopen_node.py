@@ -78,6 +78,7 @@ from bywire.protocol.host_link import (
     encode_emcy,
     error_register_for,
 )
+from bywire.protocol.timebase import data_frame
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +143,13 @@ class NmtState(IntEnum):
     PRE_OPERATIONAL = 127
 
 
+# Heartbeats arrive every few ms on both sides: a dict lookup instead of NmtState(byte)'s enum call.
+_NMT_STATES: dict[int, NmtState] = {int(m): m for m in NmtState}
+# Read in every cycle: a module constant costs less than the enum class's attribute lookup.
+_OPERATIONAL = NmtState.OPERATIONAL
+_OPERATIONAL_ONLY = (NmtState.OPERATIONAL,)
+
+
 class NmtCommand(IntEnum):
     """NMT command specifiers (CiA 301 section 7.2.8.3.1)."""
 
@@ -161,10 +169,10 @@ def parse_heartbeat(data: bytes | bytearray) -> NmtState:
     """Heartbeat data -> NMT state; ValueError for a wrong length or an undefined state."""
     if len(data) != 1:
         raise ValueError(f"heartbeat has {len(data)} data bytes, expected 1")
-    try:
-        return NmtState(data[0])
-    except ValueError:
-        raise ValueError(f"heartbeat state 0x{data[0]:02X} is not an NMT state") from None
+    state = _NMT_STATES.get(data[0])
+    if state is None:
+        raise ValueError(f"heartbeat state 0x{data[0]:02X} is not an NMT state")
+    return state
 
 
 class RefusedWrite(Exception):
@@ -295,7 +303,7 @@ class PdoLayout:
         is a plain integer type: one unpack per frame instead of one OD lookup per object."""
         codes = []
         for e in self.entries:
-            code = _STRUCT_CODES.get(e.var.data_type)
+            code = None if e.var.data_type is None else _STRUCT_CODES.get(e.var.data_type)
             if code is None or struct.calcsize("<" + code) != e.n_bytes:
                 return None
             codes.append(code)
@@ -555,6 +563,16 @@ def _drain(
     return frames, errors
 
 
+def _send_frame(network: canopen.Network, cob_id: int, data: bytes) -> None:
+    """`network.send_message(cob_id, data)` without its generic parts: an 11-bit data frame,
+    under the network's send lock; there is no Notifier thread whose error `check` could raise."""
+    msg = data_frame(cob_id, bytearray(data))
+    bus = network.bus
+    assert bus is not None, "a CANopen network without a bus"
+    with network.send_lock:
+        bus.send(msg)
+
+
 def _network_without_threads(bus: can.BusABC) -> canopen.Network:
     network = canopen.Network(bus)  # no connect(): no can.Notifier thread
     # LSS is not used; its handler queues every 0x7E4 frame forever.
@@ -594,9 +612,11 @@ class EcuNode:
         self._eds_path = Path(eds_path) if eds_path is not None else EDS_PATH
         self._max_frames = max_frames_per_poll
         self.od = load_ecu_od(node_id, eds_path)
-        self._var_cache: dict[tuple[int, int], ODVariable] = {}
+        self._packers: dict[tuple[int, int], Callable[[Any], bytes]] = {}
         self.rpdo = _request_layout(self.od)
         self.tpdos = _status_layouts(self.od)
+        self._request_keys = tuple(((REQUEST_INDEX, spec.subindex), spec.name) for spec in REQUEST_FIELDS)
+        self._status_keys = tuple((spec.subindex, spec.name) for spec in STATUS_FIELDS)
         self.emcy_cob_id = int(od_default(self.od, EMCY_COB_INDEX))
 
         self.network = _network_without_threads(bus)
@@ -687,7 +707,7 @@ class EcuNode:
         self._request_was_fresh = fresh
         self._service_tpdos(now)
         quiet = min(self._hb_timer.next_s(), self.freshness_horizon_s(now))
-        if self._nmt_state is NmtState.OPERATIONAL:
+        if self._nmt_state is _OPERATIONAL:
             for timer in self._tpdo_timers.values():
                 quiet = min(quiet, timer.next_s())
         self._quiet_until_s = quiet
@@ -705,7 +725,7 @@ class EcuNode:
 
     def host_alive(self, now_s: float) -> bool:
         """Host heartbeat fresh within 0x1016's time AND the host reports OPERATIONAL."""
-        return self.host_heartbeat.alive(now_s, (NmtState.OPERATIONAL,))
+        return self.host_heartbeat.alive(now_s, _OPERATIONAL_ONLY)
 
     def freshness_horizon_s(self, now_s: float) -> float:
         """Until when (without new frames) `host_alive` and `request_fresh` keep their value at
@@ -723,8 +743,8 @@ class EcuNode:
         """Write the status record (0x2100) and error register (0x1001) into the OD; send due TPDOs."""
         now = self._clock.now() if now_s is None else now_s
         raw = status.to_raw()
-        for spec in STATUS_FIELDS:
-            self._store(STATUS_INDEX, spec.subindex, raw[spec.name])
+        for subindex, name in self._status_keys:
+            self._store(STATUS_INDEX, subindex, raw[name])
         self._store(ERROR_REGISTER_INDEX, 0, error_register_for(status.faults))
         self._service_tpdos(now)
 
@@ -795,7 +815,7 @@ class EcuNode:
         except ValueError:
             stats.malformed += 1
             return
-        raw = {spec.name: values[(REQUEST_INDEX, spec.subindex)] for spec in REQUEST_FIELDS}
+        raw = {name: values[key] for key, name in self._request_keys}
         try:
             request = HostRequest.from_raw(raw)
         except ValueError:
@@ -815,8 +835,8 @@ class EcuNode:
         stats.accepted += 1
         self._latest = (request, self._rx_now_s)
         self._latest_us = _us(self._rx_now_s)
-        for spec in REQUEST_FIELDS:
-            self._store(REQUEST_INDEX, spec.subindex, raw[spec.name])
+        for (index, subindex), name in self._request_keys:
+            self._store(index, subindex, raw[name])
 
     def _on_sdo_request(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         if self._nmt_state not in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
@@ -940,7 +960,7 @@ class EcuNode:
                 timer.reset()
 
     def _service_tpdos(self, now_s: float) -> None:
-        if self._nmt_state is not NmtState.OPERATIONAL:
+        if self._nmt_state is not _OPERATIONAL:
             return
         for layout in self.tpdos:
             if self._tpdo_timers[layout.number].due(now_s):
@@ -959,10 +979,10 @@ class EcuNode:
         # Straight into the data store: internal updates must not run the SDO write checks.
         # The status record is stored every 20 ms: resolve each object once.
         key = (index, subindex)
-        var = self._var_cache.get(key)
-        if var is None:
-            var = self._var_cache[key] = _od_var(self.od, index, subindex)
-        self.node.data_store.setdefault(index, {})[subindex] = bytes(var.encode_raw(value))
+        pack = self._packers.get(key)
+        if pack is None:
+            pack = self._packers[key] = _raw_encoder(_od_var(self.od, index, subindex))
+        self.node.data_store.setdefault(index, {})[subindex] = pack(value)
 
     def _note_refusal(self, reason: str) -> None:
         log.warning("ECU node 0x%02X refused an SDO write: %s", self.node_id, reason)
@@ -970,7 +990,30 @@ class EcuNode:
         self._store(REFUSAL_INDEX, 0, text)
 
     def _send(self, cob_id: int, data: bytes) -> None:
-        self.network.send_message(cob_id, data)
+        if cob_id > 0x7FF:  # not ours to shortcut (canopen sends it as a 29-bit frame)
+            self.network.send_message(cob_id, data)
+        else:
+            _send_frame(self.network, cob_id, data)
+
+
+def _raw_encoder(var: ODVariable) -> Callable[[Any], bytes]:
+    """`bytes(var.encode_raw(value))` as one function per object. For an integer object without
+    limits (the status record, the request record, the error register) that is canopen's own
+    struct packer on int(value); anything else goes through canopen."""
+    packer = var.STRUCT_TYPES.get(var.data_type) if var.data_type in INTEGER_TYPES else None
+    if packer is None or var.min is not None or var.max is not None:
+        return lambda value: bytes(var.encode_raw(value))
+    pack = packer.pack
+
+    def encode(value: Any) -> bytes:
+        if isinstance(value, (bytes, bytearray)):
+            return bytes(value)
+        try:
+            return pack(int(value))
+        except struct.error:
+            raise ValueError("Value does not fit in specified type") from None
+
+    return encode
 
 
 def _call_handler(handler: Callable[[bytes], Any], data: bytes, what: str) -> Any:
@@ -1300,4 +1343,7 @@ class HostMaster:
         self._latest = (status, self._rx_now_s)
 
     def _send(self, cob_id: int, data: bytes) -> None:
-        self.network.send_message(cob_id, data)
+        if cob_id > 0x7FF:  # not ours to shortcut (canopen sends it as a 29-bit frame)
+            self.network.send_message(cob_id, data)
+        else:
+            _send_frame(self.network, cob_id, data)

@@ -64,11 +64,21 @@ def _check_frame_id(frame_id: int) -> None:
         raise ValueError(f"E2E data id: frame id {frame_id:#x} does not fit the 2-byte data id")
 
 
+# The CRC register after the two data-id bytes, per frame id: every frame of an id starts from the
+# same value, and a bus has a handful of ids (bounded anyway: at most 2**16 entries).
+_ID_SEEDS: dict[int, int] = {}
+
+
 def e2e_crc(frame_id: int, data: bytes | bytearray | memoryview) -> int:
     """The frame's E2E CRC: CRC-8 J1850 over the frame id (2 bytes little-endian) then data[1:]."""
-    _check_frame_id(frame_id)
-    crc = _crc8_update(CRC8_J1850_INIT, (frame_id & 0xFF, frame_id >> 8))
-    return _crc8_update(crc, memoryview(data)[1:]) ^ CRC8_J1850_XOR_OUT
+    crc = _ID_SEEDS.get(frame_id) if type(frame_id) is int else None  # 1.0 == 1, but is no frame id
+    if crc is None:
+        _check_frame_id(frame_id)
+        crc = _ID_SEEDS[frame_id] = _crc8_update(CRC8_J1850_INIT, (frame_id & 0xFF, frame_id >> 8))
+    table = _TABLE
+    for byte in data[1:]:  # every frame, every receiver: the loop inline, not through _crc8_update
+        crc = table[crc ^ byte]
+    return crc ^ CRC8_J1850_XOR_OUT
 
 
 def crc_ok(frame_id: int, data: bytes | bytearray | memoryview) -> bool:
@@ -113,7 +123,10 @@ class CounterStatus(StrEnum):
 
     @property
     def accepted(self) -> bool:
-        return self not in (CounterStatus.REPEATED, CounterStatus.OUT_OF_ORDER)
+        return self not in COUNTER_REJECTS
+
+
+COUNTER_REJECTS = frozenset({CounterStatus.REPEATED, CounterStatus.OUT_OF_ORDER})
 
 
 def counter_delta(last: int, new: int) -> int:

@@ -15,10 +15,9 @@ has no meaning on the wire. Decoding refuses enum values the wire contract does 
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from enum import IntEnum, IntFlag
 from typing import TypeVar
 
@@ -59,14 +58,15 @@ class FieldSpec:
     scale: float  # SI units per raw count
     unit: str
     description: str
+    # The wire type's range, RAW_RANGE[data_type]: read for every field of every message, so
+    # stored once rather than looked up each time.
+    raw_min: int = field(init=False, repr=False, compare=False)
+    raw_max: int = field(init=False, repr=False, compare=False)
 
-    @property
-    def raw_min(self) -> int:
-        return RAW_RANGE[self.data_type][0]
-
-    @property
-    def raw_max(self) -> int:
-        return RAW_RANGE[self.data_type][1]
+    def __post_init__(self) -> None:
+        lo, hi = RAW_RANGE[self.data_type]
+        object.__setattr__(self, "raw_min", lo)
+        object.__setattr__(self, "raw_max", hi)
 
     @property
     def phys_min(self) -> float:
@@ -104,7 +104,7 @@ _STATUS_BY_NAME = {f.name: f for f in STATUS_FIELDS}
 
 def encode_value(value: float, spec: FieldSpec, where: str) -> int:
     """SI value -> raw integer, rounded to the nearest count and saturated to the wire type."""
-    if math.isnan(value):
+    if value != value:  # NaN
         raise ValueError(f"{where}.{spec.name} is NaN: NaN cannot be sent on the wire")
     counts = value / spec.scale
     # Compare before rounding: round(inf) raises, and huge values need no rounding anyway.
@@ -135,15 +135,25 @@ def _check_counter(value: int, where: str) -> None:
 def _check_not_nan(obj: object, names: tuple[str, ...], where: str) -> None:
     for name in names:
         value = getattr(obj, name)
-        if isinstance(value, float) and math.isnan(value):
+        if value != value and isinstance(value, float):  # NaN is the one float unequal to itself
             raise ValueError(f"{where}.{name} is NaN")
 
 
 _E = TypeVar("_E", bound=IntEnum)
 _F = TypeVar("_F", bound=IntFlag)
 
+# Every status and request converts its state and flag integers; calling an enum class costs
+# microseconds of enum machinery. Valid values are looked up in these tables first (filled on
+# first use, bounded by the number of valid values: 2**11 fault combinations at most); anything
+# else takes the checked path below.
+_FLAG_MEMBERS: dict[type, dict[int, IntFlag]] = {}
+_KNOWN_BITS: dict[type, int] = {}
+
 
 def _as_enum(enum_type: type[_E], value: int, where: str) -> _E:
+    member = enum_type._value2member_map_.get(value) if type(value) is int else None
+    if member is not None:
+        return member  # type: ignore[return-value]  # what enum_type(value) returns
     try:
         return enum_type(value)
     except ValueError:
@@ -152,14 +162,26 @@ def _as_enum(enum_type: type[_E], value: int, where: str) -> _E:
 
 
 def _as_flags(flag_type: type[_F], value: int, where: str) -> _F:
-    known = 0
-    for member in flag_type:
-        known |= member.value
+    members = _FLAG_MEMBERS.get(flag_type)
+    if members is None:
+        members = _FLAG_MEMBERS[flag_type] = {}
+    member = members.get(value) if type(value) is int else None
+    if member is not None:
+        return member  # type: ignore[return-value]
+    known = _KNOWN_BITS.get(flag_type)
+    if known is None:
+        known = 0
+        for m in flag_type:
+            known |= m.value
+        _KNOWN_BITS[flag_type] = known
     if value & ~known:
         raise ValueError(
             f"{where}: bits 0x{value & ~known:X} of 0x{value:X} are not defined in {flag_type.__name__}"
         )
-    return flag_type(value)
+    checked = flag_type(value)
+    if type(value) is int:
+        members[value] = checked
+    return checked
 
 
 def _raw_field(raw: Mapping[str, int], spec: FieldSpec, where: str) -> int:
@@ -187,7 +209,9 @@ class HostRequest:
     def __post_init__(self) -> None:
         _check_not_nan(self, ("accel_mps2", "steer_angle_rad"), "HostRequest")
         _check_counter(self.counter, "HostRequest")
-        object.__setattr__(self, "flags", _as_flags(RequestFlags, int(self.flags), "HostRequest.flags"))
+        flags = _as_flags(RequestFlags, int(self.flags), "HostRequest.flags")
+        if flags is not self.flags:
+            object.__setattr__(self, "flags", flags)
 
     def to_raw(self) -> dict[str, int]:
         """Raw integers keyed by field name (REQUEST_FIELDS), saturated to their wire types."""
@@ -203,13 +227,13 @@ class HostRequest:
     def from_raw(cls, raw: Mapping[str, int]) -> HostRequest:
         """Inverse of to_raw; ValueError names the field that is missing, out of range or undefined."""
         where = "HostRequest"
-        values = {spec.name: _raw_field(raw, spec, where) for spec in REQUEST_FIELDS}
+        accel, steer, flags, counter = (_raw_field(raw, spec, where) for spec in REQUEST_FIELDS)
         f = _REQUEST_BY_NAME
         return cls(
-            accel_mps2=decode_value(values["accel_mps2"], f["accel_mps2"]),
-            steer_angle_rad=decode_value(values["steer_angle_rad"], f["steer_angle_rad"]),
-            flags=_as_flags(RequestFlags, values["flags"], f"{where}.flags"),
-            counter=values["counter"],
+            decode_value(accel, f["accel_mps2"]),
+            decode_value(steer, f["steer_angle_rad"]),
+            _as_flags(RequestFlags, flags, f"{where}.flags"),
+            counter,
         )
 
 
@@ -245,19 +269,23 @@ class EcuStatus:
             where,
         )
         _check_counter(self.counter, where)
-        object.__setattr__(self, "state", _as_enum(EcuState, int(self.state), f"{where}.state"))
-        object.__setattr__(self, "faults", _as_flags(Fault, int(self.faults), f"{where}.faults"))
+        state = _as_enum(EcuState, int(self.state), f"{where}.state")
+        if state is not self.state:
+            object.__setattr__(self, "state", state)
+        faults = _as_flags(Fault, int(self.faults), f"{where}.faults")
+        if faults is not self.faults:
+            object.__setattr__(self, "faults", faults)
         if isinstance(self.overruns, bool) or not isinstance(self.overruns, int):
             raise TypeError(f"{where}.overruns must be an int, got {type(self.overruns).__name__}")
 
     def to_raw(self) -> dict[str, int]:
         """Raw integers keyed by field name (STATUS_FIELDS), saturated to their wire types."""
         raw: dict[str, int] = {}
-        for spec in STATUS_FIELDS:
+        for spec, kind in _STATUS_KINDS:
             value = getattr(self, spec.name)
-            if spec.name in ("state", "faults", "counter"):
+            if kind is _INTEGER:
                 raw[spec.name] = int(value)
-            elif spec.name == "overruns":
+            elif kind is _SATURATED:
                 raw[spec.name] = min(max(int(value), spec.raw_min), spec.raw_max)
             else:
                 raw[spec.name] = encode_value(float(value), spec, "EcuStatus")
@@ -267,19 +295,36 @@ class EcuStatus:
     def from_raw(cls, raw: Mapping[str, int]) -> EcuStatus:
         """Inverse of to_raw; ValueError names the field that is missing, out of range or undefined."""
         where = "EcuStatus"
-        values = {spec.name: _raw_field(raw, spec, where) for spec in STATUS_FIELDS}
-        scaled = {
-            spec.name: decode_value(values[spec.name], spec)
-            for spec in STATUS_FIELDS
-            if spec.name not in ("state", "faults", "overruns", "counter")
-        }
-        return cls(
-            state=_as_enum(EcuState, values["state"], f"{where}.state"),
-            faults=_as_flags(Fault, values["faults"], f"{where}.faults"),
-            overruns=values["overruns"],
-            counter=values["counter"],
-            **scaled,
-        )
+        values = [_raw_field(raw, spec, where) for spec in STATUS_FIELDS]  # every field present, in range
+        args: list[object] = []  # in field order (STATUS_FIELDS is, see the check below the class)
+        for (spec, kind), value in zip(_STATUS_KINDS, values, strict=True):
+            if kind is _SCALED:
+                args.append(decode_value(value, spec))
+            elif spec.name == "state":
+                args.append(_as_enum(EcuState, value, f"{where}.state"))
+            elif spec.name == "faults":
+                args.append(_as_flags(Fault, value, f"{where}.faults"))
+            else:
+                args.append(value)
+        return cls(*args)  # type: ignore[arg-type]
+
+
+_INTEGER, _SATURATED, _SCALED = "integer", "saturated", "scaled"
+# How each status field goes to the wire: as its integer (enums, bits, the counter), saturated
+# to the wire type (overruns), or scaled (the physical values).
+_STATUS_KINDS: tuple[tuple[FieldSpec, str], ...] = tuple(
+    (
+        spec,
+        _INTEGER
+        if spec.name in ("state", "faults", "counter")
+        else (_SATURATED if spec.name == "overruns" else _SCALED),
+    )
+    for spec in STATUS_FIELDS
+)
+# from_raw builds both records by position: the wire tables must list the fields in field order.
+for _record, _specs in ((EcuStatus, STATUS_FIELDS), (HostRequest, REQUEST_FIELDS)):
+    if [f.name for f in fields(_record)] != [spec.name for spec in _specs]:
+        raise RuntimeError(f"{_record.__name__}: its wire table does not list the fields in field order")
 
 
 # --- EMCY (CiA 301 section 7.2.7): 8 bytes = error code u16 LE, error register u8 (object 0x1001),
@@ -311,6 +356,7 @@ _COMMUNICATION_FAULTS = (
     | Fault.ESTOP_TIMEOUT
     | Fault.REQUEST_INVALID
 )
+_COMMUNICATION_BITS = int(_COMMUNICATION_FAULTS)
 ERROR_REGISTER_GENERIC = 1 << 0
 ERROR_REGISTER_COMMUNICATION = 1 << 4
 ERROR_REGISTER_MANUFACTURER = 1 << 7
@@ -326,12 +372,13 @@ def emcy_code_for(faults: Fault) -> int:
 
 def error_register_for(faults: Fault) -> int:
     """Object 0x1001 error register for a fault set (CiA 301 section 7.5.2.2)."""
-    if not faults:
+    bits = int(faults)  # plain ints: every Fault operation costs microseconds of enum machinery
+    if not bits:
         return 0
     register = ERROR_REGISTER_GENERIC
-    if faults & _COMMUNICATION_FAULTS:
+    if bits & _COMMUNICATION_BITS:
         register |= ERROR_REGISTER_COMMUNICATION
-    if faults & ~_COMMUNICATION_FAULTS:
+    if bits & ~_COMMUNICATION_BITS:
         register |= ERROR_REGISTER_MANUFACTURER
     return register
 

@@ -40,6 +40,7 @@ import cantools.database
 
 from bywire.protocol.e2e import (
     COUNTER_MODULO,
+    COUNTER_REJECTS,
     DEFAULT_MAX_DELTA_COUNTER,
     CounterStatus,
     RejectReason,
@@ -48,6 +49,7 @@ from bywire.protocol.e2e import (
     e2e_crc,
 )
 from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.timebase import data_frame
 
 __all__ = [
     "DbwCommand",
@@ -347,6 +349,8 @@ def _compile(db: Any, where: str) -> dict[int, MessageInfo]:
             sig_where = f"{here} signal {f.signal}"
             if s.is_float or s.byte_order != "little_endian":
                 raise ValueError(f"{sig_where}: only little-endian integer signals are supported")
+            if s.start < COUNTER_START_BIT + COUNTER_BITS:
+                raise ValueError(f"{sig_where}: overlaps the E2E CRC byte or counter nibble")
             unit = s.unit or ""
             if f.kind == "float" and unit != f.unit:
                 raise ValueError(
@@ -493,13 +497,7 @@ class VehicleCodec:
             payload |= (raw & sig.mask) << sig.start
         data = bytearray(payload.to_bytes(info.length, "little"))
         data[0] = e2e_crc(info.frame_id, data)
-        return can.Message(
-            timestamp=timestamp_s,
-            arbitration_id=info.frame_id,
-            is_extended_id=False,
-            dlc=info.length,
-            data=data,
-        )
+        return data_frame(info.frame_id, data, timestamp_s)
 
     # -- decoding --
 
@@ -530,11 +528,7 @@ class VehicleCodec:
         """FrameError(corrupt) unless byte 0 of `data` is the E2E CRC of `info`'s frame id and data."""
         expected = e2e_crc(info.frame_id, data)
         if data[0] != expected:
-            raise FrameError(
-                info.frame_id,
-                RejectReason.CORRUPT,
-                f"{info.name}: CRC {data[0]:#04x}, expected {expected:#04x}",
-            )
+            raise _crc_error(info, data, expected)
 
     def decode_payload(self, info: MessageInfo, data: bytes | bytearray) -> tuple[VehicleFrame, int]:
         """(typed frame, alive counter) of a structurally valid payload; FrameError(malformed) if a
@@ -576,32 +570,46 @@ class VehicleCodec:
         return self.decode_payload(info, msg.data)[0]
 
 
+def _crc_error(info: MessageInfo, data: bytes | bytearray, expected: int) -> FrameError:
+    return FrameError(
+        info.frame_id, RejectReason.CORRUPT, f"{info.name}: CRC {data[0]:#04x}, expected {expected:#04x}"
+    )
+
+
 def _to_raw(sig: SignalInfo, value: object, saturate: bool) -> int:
     """The raw integer for a field value; ValueError (without the where, see `encode`) if invalid."""
-    if sig.kind == "bool":
+    kind = sig.kind
+    if kind == "bool":
         if value not in (0, 1):
             raise ValueError(f"{value!r} is not a flag (bool)")
         return 1 if value else 0
-    if sig.kind == "enum":
+    if kind == "enum":
         assert sig.enum is not None
-        if isinstance(value, IntEnum) and not isinstance(value, sig.enum):
-            raise ValueError(f"{value!r} is not a {sig.enum.__name__}")
-        try:
-            member = sig.enum(value)  # type: ignore[arg-type]
-        except ValueError:
-            raise ValueError(f"{value!r} is not a {sig.enum.__name__}") from None
+        if type(value) is sig.enum:
+            member = value  # already a member: what sig.enum(value) would return, at no cost
+        else:
+            if isinstance(value, IntEnum) and not isinstance(value, sig.enum):
+                raise ValueError(f"{value!r} is not a {sig.enum.__name__}")
+            try:
+                member = sig.enum(value)  # type: ignore[arg-type]
+            except ValueError:
+                raise ValueError(f"{value!r} is not a {sig.enum.__name__}") from None
         if not sig.raw_min <= member.value <= sig.raw_max:
             raise ValueError(f"{member!r} does not fit the DBC range")
         return int(member.value)
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{value!r} is not a number") from None
-    if math.isnan(v):
+    if type(value) is float:
+        v = value
+    else:
+        try:
+            v = float(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise ValueError(f"{value!r} is not a number") from None
+    if v != v:
         raise ValueError("NaN")
     scaled = (v - sig.offset) / sig.scale
     if saturate:
-        return round(min(max(scaled, sig.raw_min), sig.raw_max))
+        lo, hi = sig.raw_min, sig.raw_max
+        return round(lo if scaled < lo else (hi if scaled > hi else scaled))
     raw = round(scaled) if math.isfinite(scaled) else None
     if raw is None or not sig.raw_min <= raw <= sig.raw_max:
         raise ValueError(f"{v} {sig.unit} outside the DBC range [{sig.minimum:g}, {sig.maximum:g}]")
@@ -618,7 +626,8 @@ class VehicleTx:
     def encode(self, frame: VehicleFrame, *, saturate: bool = False, timestamp_s: float = 0.0) -> can.Message:
         """`codec.encode` with this sender's next counter for the frame's message; a frame that
         fails to encode does not use up a counter value."""
-        frame_id = self.codec.info(type(frame)).frame_id
+        info = self.codec._by_type.get(type(frame))
+        frame_id = (info if info is not None else self.codec.info(type(frame))).frame_id
         msg = self.codec.encode(
             frame, self.counters.peek(frame_id), saturate=saturate, timestamp_s=timestamp_s
         )
@@ -629,6 +638,9 @@ class VehicleTx:
 # -- the receiver -----------------------------------------------------------------------------------
 
 _OUTCOMES: Final = ("accepted", "ignored", *(r.value for r in RejectReason))
+_RESYNC: Final = CounterStatus.RESYNC
+# Every signal lies above the CRC byte and the counter nibble (checked when the DBC is compiled).
+_SIGNAL_BITS_START: Final = COUNTER_START_BIT + COUNTER_BITS
 _COUNTERS: Final = (*_OUTCOMES, "lost", "resync")
 
 
@@ -646,6 +658,10 @@ class _RxState:
     last_time_s: float | None = None
     error_streak: int = 0
     last_reject: tuple[str, str, float] | None = None  # (reason, detail, now_s)
+    # The signal bits (above the CRC and counter) of the last payload decoded, and its frame:
+    # decoding is a function of those bits alone, and most reports repeat their values.
+    decoded_bits: int = -1
+    decoded_frame: VehicleFrame | None = None
 
 
 class RxMonitor:
@@ -750,9 +766,21 @@ class VehicleRx:
         if state is not None and not state.subscribed:
             self._count(state, "ignored", "", now_s)
             return None
+        data = msg.data
         try:
-            info = self.codec.check_structure(msg)
-            self.codec.check_crc(info, msg.data)
+            if (
+                state is None
+                or msg.is_error_frame
+                or msg.is_remote_frame
+                or msg.is_fd
+                or msg.dlc != state.info.length
+                or len(data) != state.info.length
+            ):
+                self.codec.check_structure(msg)  # says which structural check failed (raises)
+            info = state.info  # type: ignore[union-attr]  # check_structure raised if state is None
+            expected = e2e_crc(frame_id, data)
+            if data[0] != expected:
+                raise _crc_error(info, data, expected)
         except FrameError as err:
             if state is None:
                 self._note_unknown(msg)
@@ -776,18 +804,25 @@ class VehicleRx:
                     detail = f"{info.name}: receive time {rx_s} or now {now_s} is not a number"
                 self._count(state, "stale", detail, now_s)
                 return None
-        try:
-            frame, counter = self.codec.decode_payload(info, msg.data)
-        except FrameError as err:
-            self._count(state, err.reason.value, err.detail, now_s)
-            return None
+        payload = int.from_bytes(data, "little")
+        bits = payload >> _SIGNAL_BITS_START
+        if bits == state.decoded_bits:
+            frame = state.decoded_frame
+            counter = (payload >> COUNTER_START_BIT) & (COUNTER_MODULO - 1)
+        else:
+            try:
+                frame, counter = self.codec.decode_payload(info, data)
+            except FrameError as err:
+                self._count(state, err.reason.value, err.detail, now_s)
+                return None
+            state.decoded_bits, state.decoded_frame = bits, frame
         timed_out = (
             state.last_time_s is not None and now_s - state.last_time_s > self.timeout_cycles * cycle_s
         )
         status, lost = check_counter(
             state.last_counter, counter, timed_out=timed_out, max_delta=self.max_delta_counter
         )
-        if not status.accepted:
+        if status in COUNTER_REJECTS:
             self._count(
                 state, status.value, f"{info.name}: counter {counter} after {state.last_counter}", now_s
             )
@@ -799,7 +834,7 @@ class VehicleRx:
         if lost:
             state.counts["lost"] += lost
             self._total["lost"] += lost
-        if status is CounterStatus.RESYNC:
+        if status is _RESYNC:
             state.counts["resync"] += 1
             self._total["resync"] += 1
         return frame

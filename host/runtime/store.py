@@ -19,6 +19,7 @@ else can publish while a reader waits, so SIL uses `poll`).
 from __future__ import annotations
 
 import bisect
+import builtins
 import dataclasses
 import math
 import threading
@@ -64,7 +65,7 @@ def _check_object(topic: str, obj: object) -> float:
 
 @dataclass
 class _Topic:
-    type: type
+    type: builtins.type
     history: int
     times: deque[float]
     objects: deque[Any]
@@ -74,7 +75,7 @@ class _Topic:
     store_seqs: deque[int] = dataclasses.field(default_factory=deque)
 
     @classmethod
-    def empty(cls, obj_type: type, history: int) -> _Topic:
+    def empty(cls, obj_type: builtins.type, history: int) -> _Topic:
         return cls(obj_type, history, deque(maxlen=history), deque(maxlen=history), 0, deque(maxlen=history))
 
     def held_as_of(self, as_of: int | None) -> int:
