@@ -41,6 +41,11 @@ def _hil_run_arguments(p: argparse.ArgumentParser, scenario_required: bool = Tru
     p.add_argument(
         "--ecu-store", type=Path, help="HIL: boot the ECU from this flashed store (bywire ecu flash)"
     )
+    p.add_argument(
+        "--leader-profile",
+        type=Path,
+        help="OpenACC or CARMA CSV: the first car's speed drives the scenario's replay leader (issue 4)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -125,6 +130,11 @@ def build_parser() -> argparse.ArgumentParser:
             help="string stability of a recorded platoon (OpenACC or CARMA CSV): worst spectral ratio",
         )
     )
+    from bywire.hil.world import map_cli
+
+    map_cli.add_arguments(
+        platoon.add_parser("record-map", help="a lane map (JSON) from an NMEA log of a drive along the lane")
+    )
 
     from bywire.host.roadnet import roadnet_cli  # stdlib-only imports
 
@@ -195,6 +205,7 @@ def _cmd_hil_run(args: argparse.Namespace, scenario_name: str, default_mode: str
         host_link=args.host_link,
         ecu_store=args.ecu_store,
         progress=progress,
+        leader_profile=args.leader_profile,
     )
     for check in result["checks"]:
         mark = "PASS" if check["passed"] else "FAIL"
@@ -252,6 +263,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             return bench_ecu(args.seconds, args.json, args.report)
         if args.command == "platoon":
+            if args.platoon_command == "record-map":
+                from bywire.hil.world import map_cli
+
+                return map_cli.main(args)
             from bywire.host.platoon import platoon_cli
 
             return platoon_cli.main(args)

@@ -168,9 +168,11 @@ def evaluate(
     host: dict[str, np.ndarray] | None,
     extra: dict[str, Any] | None = None,
     mode: str = "sil",
+    traffic: dict[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """The JSON document of a run: scenario, verdict, checks and metrics (issue 2 contract).
-    `mode` picks each check's limit (a check may allow more in HIL, see `Check.hil_limit`)."""
+    `mode` picks each check's limit (a check may allow more in HIL, see `Check.hil_limit`).
+    A scenario with a world (issue 4) adds the platoon metrics of `hil.platoon_eval` from `traffic`."""
     metrics: dict[str, Any] = {}
     if plant["t_s"].size == 0:
         metrics["final_state"] = "NO_DATA"
@@ -217,7 +219,15 @@ def evaluate(
     runtime = extra.pop("host_runtime", None)
     if runtime is not None:
         metrics.update(supervisor_metrics(scenario, runtime))
+    world = extra.pop("world", None)
+    gcdc = extra.pop("gcdc", None)
     metrics.update(extra)
+    if scenario.world is not None and plant["t_s"].size:
+        from bywire.hil.platoon_eval import evaluate_platoon
+
+        metrics.update(
+            evaluate_platoon(scenario, plant, host, traffic, {"world": world or {}, "gcdc": gcdc or {}})
+        )
     checks = [run_check(c, metrics, mode) for c in scenario.checks]
     verdict = "pass" if checks and all(c["passed"] for c in checks) else "fail"
     if not checks:

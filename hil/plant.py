@@ -6,18 +6,27 @@ frame is fresh, valid and engaged; the driver's brake always adds), steps the FM
 and turns FMU outputs into the gateway's report frames with sensor noise. Scenario faults are
 injected here: E-stop modes, driver brake and steering, grade and wind, and lost, corrupt, repeated
 or delayed frames. The same class runs in the HIL plant process (wall clock) and in SIL (lockstep).
+
+The world around the car (issue 4, `hil.world`): roads, traffic, the radar that sees it, the GPS receiver
+and the V2V radio, stepped at the plant's events. A scenario's `world:` section builds it; the spine's
+`host.lead` becomes a scripted car on a one-lane road (`hil.world.sim.lead_world`), with the spine's radar.
+`PlantLinks` carries where the world's V2V datagrams and GPS bytes go (SIL: in-process; HIL: loopback UDP
+broadcast and a pty) and the traffic trace.
 """
 
 from __future__ import annotations
 
 import random
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import can
 
 from bywire.hil.scenario import FaultEvent, Scenario, ramp_value
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
+from bywire.hil.world.sim import WorldSim, lead_world
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
@@ -38,10 +47,23 @@ GATEWAY_PERIOD_S = 0.010  # GW_* frames, GenMsgCycleTime 10 ms in vehicle.dbc
 SLOW_PERIOD_S = 0.050  # ESTOP_Radio and RADAR_Target, 50 ms
 TRACE_PERIOD_S = 0.010
 MAX_HOLD_S = 0.010  # the model is advanced at least this often, even without an event
-RADAR_MAX_RANGE_M = 120.0  # a series ACC radar's useful range for a car target
 PARK_BRAKE_EQUIV_BAR = 60.0  # the electric park brake, expressed as service-brake pressure for the model
 DRIVER_BRAKE_BAR_PER_PCT = 1.2  # 100 % pedal ~ 120 bar: a full driver stop
 GATEWAY_FRAMES = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+# The world (traffic, radar geometry, V2V, GPS) is stepped at events at most this often: ~100 Hz, the
+# gateway's rate; the command and delay events in between change nothing the traffic could see.
+WORLD_MIN_STEP_S = 0.0095
+
+
+@dataclass
+class PlantLinks:
+    """Where the world speaks to the host besides vehicle CAN (all optional: a world without them is mute)."""
+
+    v2x_send: Callable[[bytes], Any] | None = None
+    gps_write: Callable[[bytes], Any] | None = None
+    traffic_trace: TraceWriter | None = None
+    unix_time: Callable[[float], float] | None = None  # scenario time -> UNIX s (V2V generation stamps)
+    replay_profile: Sequence[tuple[float, float]] = field(default_factory=tuple)
 
 
 @dataclass
@@ -61,6 +83,7 @@ class Plant:
         bus: can.BusABC,
         t0_s: float,
         trace: TraceWriter | None = None,
+        links: PlantLinks | None = None,
     ) -> None:
         self.scenario = scenario
         self.vehicle = vehicle
@@ -80,7 +103,9 @@ class Plant:
         self._next_trace_s = t0_s
         self._last_step_s: float | None = None
         self.outputs = vehicle.outputs()
-        self._lead_pos_m = scenario.lead.gap0_m if scenario.lead else 0.0
+        self.links = links or PlantLinks()
+        self.world = self._make_world(scenario, self.links)
+        self._world_t_s = -1.0
         self._applied = _Actuation()
         self.collisions = 0
         self._in_collision = False
@@ -156,7 +181,7 @@ class Plant:
                     wind_mps=ramp_value(self.scenario.wind_mps, t_prev),
                 ),
             )
-            self._advance_lead(t_prev, t)
+            self._advance_world(t)
         if self._last_step_s is None or now_s > self._last_step_s:
             self._last_step_s = now_s
         while self._pending and self._pending[0][0] <= now_s:
@@ -235,13 +260,34 @@ class Plant:
                 if due < self._next_event_s:
                     self._next_event_s = due
 
-    def _advance_lead(self, t_prev: float, t: float) -> None:
-        lead = self.scenario.lead
-        if lead is None:
+    @staticmethod
+    def _make_world(scenario: Scenario, links: PlantLinks) -> WorldSim | None:
+        spec = scenario.world
+        if spec is None and scenario.lead is not None:
+            lead = scenario.lead
+            spec = lead_world(lead.gap0_m, lead.speed_profile, lead.length_m, lead.leaves_at_s)
+        if spec is None:
+            return None
+        epoch = spec.v2v.epoch_unix_s
+        return WorldSim(
+            spec,
+            scenario.seed,
+            links.unix_time or (lambda t: epoch + t),
+            send=links.v2x_send,
+            gps_write=links.gps_write,
+            trace=links.traffic_trace,
+            replay_profile=links.replay_profile,
+        )
+
+    def _advance_world(self, t: float) -> None:
+        """The world at scenario time t, around the FMU's state at t (the traffic's own lag integrates
+        over the interval; the gaps are booked at t, every event)."""
+        world = self.world
+        if world is None or t < self._world_t_s + WORLD_MIN_STEP_S:
             return
-        # Trapezoid: exact for the piecewise-linear speed profile between events.
-        profile = lead.speed_profile
-        self._lead_pos_m += 0.5 * (ramp_value(profile, t_prev) + ramp_value(profile, t)) * (t - t_prev)
+        self._world_t_s = t
+        out = self.outputs
+        world.step(t, out.x_m, out.y_m, out.heading_rad, out.speed_mps, out.accel_mps2, out.yaw_rate_radps)
         gap = self.lead_gap_m(t)
         if gap is not None:
             self.min_gap_m = min(self.min_gap_m, gap)
@@ -250,10 +296,13 @@ class Plant:
             self._in_collision = gap <= 0.0
 
     def lead_gap_m(self, t: float) -> float | None:
-        lead = self.scenario.lead
-        if lead is None or (lead.leaves_at_s is not None and t >= lead.leaves_at_s):
-            return None
-        return self._lead_pos_m - self.outputs.distance_m
+        """Gap from our front bumper to the car ahead on our lane (truth), None when there is none."""
+        lead = self.world.lead() if self.world is not None else None
+        return None if lead is None else lead[0]
+
+    def lead_speed_mps(self) -> float:
+        lead = self.world.lead() if self.world is not None else None
+        return float("nan") if lead is None else lead[1]
 
     # -- frames ------------------------------------------------------------------------------------
 
@@ -335,14 +384,13 @@ class Plant:
 
     def _send_slow(self, now_s: float, t: float) -> None:
         self._emit("ESTOP_Radio", EstopRadio(mode=self.estop_mode(t)), now_s, t)
-        gap = self.lead_gap_m(t)
-        if gap is not None and 0.0 < gap < RADAR_MAX_RANGE_M and self.scenario.lead is not None:
-            rate = ramp_value(self.scenario.lead.speed_profile, t) - self.outputs.speed_mps
+        ret = self.world.world.radar(self._noise, self.scenario.radar_range_noise_m) if self.world else None
+        if ret is not None and ret.valid:
             target = RadarTarget(
                 valid=True,
-                range_m=max(0.0, gap + self._noise(self.scenario.radar_range_noise_m)),
-                range_rate_mps=rate + self._noise(0.05),
-                azimuth_rad=0.0,
+                range_m=ret.range_m,
+                range_rate_mps=ret.range_rate_mps,
+                azimuth_rad=ret.azimuth_rad,
             )
         else:
             target = RadarTarget(valid=False, range_m=0.0, range_rate_mps=0.0, azimuth_rad=0.0)
@@ -352,7 +400,7 @@ class Plant:
         out = self.outputs
         cmd = self._cmd
         gap = self.lead_gap_m(t)
-        lead_speed = ramp_value(self.scenario.lead.speed_profile, t) if self.scenario.lead else float("nan")
+        lead_speed = self.lead_speed_mps() if gap is not None else float("nan")
         self.trace.append(
             (
                 t,
@@ -382,4 +430,4 @@ class Plant:
         )
 
 
-__all__ = ["Plant"]
+__all__ = ["Plant", "PlantLinks"]

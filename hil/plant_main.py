@@ -1,22 +1,32 @@
-"""`bywire hil plant`: the plant as its own real-time process on the vehicle bus (1 kHz, wall clock)."""
+"""`bywire hil plant`: the plant as its own real-time process on the vehicle bus (1 kHz, wall clock).
+
+With a world (issue 4): `--v2x URL` broadcasts the simulated vehicles' and road side's datagrams,
+`--gps-fd N` writes the GPS receiver's NMEA to an inherited pty master, `--traffic-trace` and
+`--world-summary` keep the per-vehicle trace and the bookkeeping, `--leader-profile CSV` replays a real
+leader (see `hil.world.replay`). V2V generation times are the wall clock's (UNIX) at scenario time t.
+"""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
 import dataclasses
+import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
 from bywire.clock import WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
 from bywire.ecu.realtime import apply_realtime
-from bywire.hil.plant import Plant
+from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.process_util import StopFlag, wait_for_t0
 from bywire.hil.scenario import load_scenario
 from bywire.hil.sil import open_scenario_vehicle
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
+from bywire.hil.world.links import FdWriter
+from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.protocol.bus_url import open_bus
 
 PLANT_PERIOD_S = 0.001
@@ -28,6 +38,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trace", type=Path, help="CSV trace of the vehicle's ground truth")
     p.add_argument("--t0", help="start instant on CLOCK_MONOTONIC, or '-' to read it from stdin")
     p.add_argument("--duration", type=float, help="override the scenario's duration (s)")
+    p.add_argument("--v2x", help="V2X link for the world's broadcasts, e.g. v2x://127.255.255.255:47100")
+    p.add_argument(
+        "--gps-fd", type=int, help="inherited file descriptor (pty master) for the GPS receiver's NMEA"
+    )
+    p.add_argument("--traffic-trace", type=Path, help="CSV trace of every vehicle of the world")
+    p.add_argument(
+        "--world-summary", type=Path, help="write the world's bookkeeping (gaps, TTC, collisions) as JSON"
+    )
+    p.add_argument("--leader-profile", type=Path, help="OpenACC or CARMA CSV: the replay vehicle's speed")
     p.add_argument(
         "--rt-priority",
         type=int,
@@ -50,9 +69,34 @@ def main(args: argparse.Namespace) -> int:
     else:
         with contextlib.suppress(OSError):
             os.nice(-10)  # first among normal tasks, without counting against the RT budget
+    traffic = (
+        TraceWriter(args.traffic_trace, TRAFFIC_COLUMNS, flush_every=200) if args.traffic_trace else None
+    )
+    v2x: Any = None
+    gps: FdWriter | None = None
+    profile: tuple[tuple[float, float], ...] = ()
+    if args.leader_profile is not None:
+        from bywire.hil.world.replay import leader_profile_from_csv
+
+        profile = leader_profile_from_csv(scenario, args.leader_profile)
+    plant: Plant | None = None
     try:
+        if args.v2x:
+            from bywire.protocol.v2x.transport import open_v2x
+
+            v2x = open_v2x(args.v2x, receive=False)
+        if args.gps_fd is not None:
+            gps = FdWriter(args.gps_fd)
         t0 = wait_for_t0(args.t0)
-        plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace)
+        t0_unix = t0 + (time.time() - time.monotonic())
+        links = PlantLinks(
+            v2x_send=v2x.send if v2x is not None else None,
+            gps_write=gps.write if gps is not None else None,
+            traffic_trace=traffic,
+            unix_time=lambda t: t0_unix + t,
+            replay_profile=profile,
+        )
+        plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace, links=links)
         stats = CycleStats()
         end = t0 + scenario.duration_s
         executive = CyclicExecutive(PLANT_PERIOD_S, clock, plant.step, stats)
@@ -66,6 +110,14 @@ def main(args: argparse.Namespace) -> int:
         )
     finally:
         trace.close()
+        if traffic is not None:
+            traffic.close()
+        if plant is not None and plant.world is not None and args.world_summary is not None:
+            args.world_summary.write_text(json.dumps(plant.world.summary(), indent=1), encoding="utf-8")
+        if v2x is not None:
+            v2x.close()
+        if gps is not None:
+            gps.close()
         vehicle.close()
         bus.shutdown()
     return 0

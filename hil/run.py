@@ -21,9 +21,16 @@ def run_scenario(
     host_link: str = "remote",
     ecu_store: Path | None = None,
     progress: Callable[[float], None] | None = None,
+    leader_profile: Path | None = None,
 ) -> dict[str, Any]:
-    """Run one scenario and return the result document (also written to `json_path` / `report_dir`)."""
+    """Run one scenario and return the result document (also written to `json_path` / `report_dir`).
+    `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle."""
     scenario = load_scenario(name_or_file)
+    profile: tuple[tuple[float, float], ...] = ()
+    if leader_profile is not None:
+        from bywire.hil.world.replay import leader_profile_from_csv
+
+        profile = leader_profile_from_csv(scenario, leader_profile)
     from bywire.host.agent import check_module_faults
     from bywire.host.config import load_host_config
 
@@ -39,18 +46,24 @@ def run_scenario(
         if mode == "sil":
             from bywire.hil.sil import run_sil
 
-            result = run_sil(scenario, run_dir, record=record, progress=progress)
+            result = run_sil(scenario, run_dir, record=record, progress=progress, leader_profile=profile)
         elif mode == "hil":
             from bywire.hil.runner import run_hil
 
             result = run_hil(
-                scenario, run_dir, record=record, host_link=host_link, progress=progress, ecu_store=ecu_store
+                scenario,
+                run_dir,
+                record=record,
+                host_link=host_link,
+                progress=progress,
+                ecu_store=ecu_store,
+                leader_profile=leader_profile,
             )
         else:
             raise ValueError(f"mode must be sil or hil, not {mode!r}")
         if progress is not None:
             progress(1.0)
-        document = evaluate(scenario, result.plant, result.host, result.extra, mode)
+        document = evaluate(scenario, result.plant, result.host, result.extra, mode, result.traffic)
         document = {
             "scenario": document["scenario"],
             "mode": mode,
@@ -58,6 +71,10 @@ def run_scenario(
         }
         if report_dir is not None:
             plot_run(report_dir / f"{scenario.name}.png", scenario, result.plant, result.host, document)
+            if scenario.world is not None and result.traffic is not None:
+                from bywire.hil.platoon_report import plot_platoon
+
+                plot_platoon(report_dir, scenario, result.traffic, result.host, document)
             write_json(report_dir / f"{scenario.name}.json", document)
             document["report_dir"] = str(report_dir)
         if json_path is not None:

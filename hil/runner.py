@@ -5,6 +5,13 @@ each child loads everything (FMU, DBC, EDS), prints `ready`, and waits on stdin 
 start instant t0 on CLOCK_MONOTONIC, which the runner sends once all are ready. Scenario faults
 that concern the host process itself (SIGSTOP freeze, SIGKILL) are applied here at t0 + at_s.
 Every process writes its own trace; the runner records every frame on the buses it can see.
+
+A scenario with a world (issue 4) also gets its non-CAN links, all on this machine: the V2X radio as UDP
+broadcast on loopback (`v2x://127.255.255.255:PORT`, a free port per run), and the GPS receiver's serial
+line as a pseudo-terminal pair the runner creates and holds for the run: the plant inherits the master
+(`--gps-fd`), the host opens the slave like a real port (`--gps-serial`). The plant writes the world's
+per-vehicle trace (`traffic.csv`) and its bookkeeping (`world.json`); the host adds its V2V counters to
+its summary (`gcdc`).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_c
 from bywire.hil.scenario import Scenario
 from bywire.hil.sil import RunResult
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, read_trace
+from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.protocol.bus_url import open_bus, wait_for_port
 
 READY_TIMEOUT_S = 90.0  # four Python processes importing numpy/fmpy/canopen at once on 2 cores
@@ -49,14 +57,22 @@ def free_port() -> int:
 class Child:
     """One child process with its output captured to a log file and a line-based ready handshake."""
 
-    def __init__(self, name: str, argv: list[str], log_path: Path, wants_t0: bool) -> None:
+    def __init__(
+        self, name: str, argv: list[str], log_path: Path, wants_t0: bool, pass_fds: tuple[int, ...] = ()
+    ) -> None:
         self.name = name
         self.log_path = log_path
         self.wants_t0 = wants_t0
         self._log = open(log_path, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
-            argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+            argv,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+            pass_fds=pass_fds,
         )
         self.ready = threading.Event()
         self._thread = threading.Thread(target=self._pump, args=(self.proc.stdout,), daemon=True)
@@ -119,10 +135,29 @@ def run_hil(
     host_link: str = "remote",
     progress: Callable[[float], None] | None = None,
     ecu_store: Path | None = None,
+    leader_profile: Path | None = None,
 ) -> RunResult:
     """Run `scenario` as real processes on loopback virtual buses; traces and logs land in `run_dir`."""
     run_dir.mkdir(parents=True, exist_ok=True)
     children: list[Child] = []
+    pty: Any = None
+    plant_world_args: list[str] = []
+    host_world_args: list[str] = []
+    plant_fds: tuple[int, ...] = ()
+    if scenario.world is not None:
+        from bywire.host.world.serial_link import PtyLink
+
+        v2x_url = f"v2x://127.255.255.255:{free_udp_port()}"
+        plant_world_args = ["--v2x", v2x_url, "--traffic-trace", str(run_dir / "traffic.csv")]
+        plant_world_args += ["--world-summary", str(run_dir / "world.json")]
+        host_world_args = ["--v2x", v2x_url]
+        if scenario.world.gps.enabled:
+            pty = PtyLink()
+            plant_world_args += ["--gps-fd", str(pty.master_fd)]
+            plant_fds = (pty.master_fd,)
+            host_world_args += ["--gps-serial", pty.slave_path]
+        if leader_profile is not None:
+            plant_world_args += ["--leader-profile", str(leader_profile)]
     vehicle_port = free_port()
     vehicle_url = f"remote:ws://127.0.0.1:{vehicle_port}/"
     children.append(
@@ -214,9 +249,11 @@ def run_hil(
                 "-",
                 "--duration",
                 repr(scenario.duration_s),
+                *plant_world_args,
             ],
             run_dir / "plant.log",
             True,
+            **({"pass_fds": plant_fds} if plant_fds else {}),
         )
         children.append(plant)
         host = Child(
@@ -246,6 +283,7 @@ def run_hil(
                 repr(scenario.duration_s + 2.0),
                 "--rt-priority",
                 str(HOST_RT_PRIORITY),
+                *host_world_args,
             ],
             run_dir / "host.log",
             True,
@@ -289,6 +327,8 @@ def run_hil(
             codes[child.name] = child.stop()
             child.close()
         result_extra["exit_codes"] = codes
+        if pty is not None:
+            pty.close()
     if record is not None and is_mcap(record):
         parts = [run_dir / HOST_TOPICS_PART, run_dir / FRAMES_PART]
         result_extra["recording"] = merge_recordings(record, parts)
@@ -297,14 +337,23 @@ def run_hil(
                 part.unlink()  # all in `record` now; a part that had trouble stays for a post-mortem
     runtime_path = run_dir / "host_runtime.json"
     if runtime_path.exists():
-        result_extra["host_runtime"] = json.loads(runtime_path.read_text(encoding="utf-8"))
+        runtime = json.loads(runtime_path.read_text(encoding="utf-8"))
+        gcdc = runtime.pop("gcdc", None)
+        if gcdc is not None:
+            result_extra["gcdc"] = gcdc
+        result_extra["host_runtime"] = runtime
+    world_path = run_dir / "world.json"
+    if world_path.exists():
+        result_extra["world"] = json.loads(world_path.read_text(encoding="utf-8"))
     stats_path = run_dir / "ecu_stats.json"
     if stats_path.exists():
         result_extra["ecu_loop"] = json.loads(stats_path.read_text(encoding="utf-8"))
     plant_trace = read_trace(run_dir / "plant.csv", PLANT_COLUMNS)
     host_path = run_dir / "host.csv"
     host_trace = read_trace(host_path, HOST_COLUMNS) if host_path.exists() else None
-    return RunResult(plant=plant_trace, host=host_trace, extra=result_extra)
+    traffic_path = run_dir / "traffic.csv"
+    traffic = read_trace(traffic_path, TRAFFIC_COLUMNS) if traffic_path.exists() else None
+    return RunResult(plant=plant_trace, host=host_trace, extra=result_extra, traffic=traffic)
 
 
 def free_udp_port() -> int:

@@ -18,6 +18,7 @@ from typing import Any
 
 import yaml
 
+from bywire.hil.world.spec import WorldSpec, parse_world
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.schema import Reader, SchemaError
 
@@ -151,6 +152,7 @@ class Scenario:
     seed: int
     hil_timeout_s: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
+    world: WorldSpec | None = None  # issue 4: roads, traffic, radar, GPS, V2V (hil.world.spec)
 
     def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
         return tuple(f for f in self.faults if f.kind in kinds)
@@ -308,6 +310,13 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     fault_ref = r.opt_number("fault_ref_s", lo=0.0)
     hold_until = r.opt_number("hold_until_s", lo=0.0)
     extra = r.raw("extra", {}) or {}
+    world = None
+    if r.has("world"):
+        world = parse_world(r.raw("world"), source, "world", ScenarioError)
+        if lead is not None:
+            raise ScenarioError(
+                source, "host.lead", "give the lead car as a world vehicle when there is a world"
+            )
     r.finish()
     if fault_ref is None and faults:
         fault_ref = min(f.at_s for f in faults)
@@ -342,6 +351,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         seed=seed,
         hil_timeout_s=hil_timeout_s,
         extra=dict(extra),
+        world=world,
     )
 
 

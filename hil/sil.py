@@ -4,13 +4,18 @@ The same `Plant`, `EcuApp` and `HostAgent` classes as the three HIL processes, o
 `virtual` buses (tuned for lockstep, see `sil_bus`), stepped every simulated millisecond in a fixed
 order: plant (sensors out), ECU (one 1 kHz cycle), host (every 20 ms). No threads, no wall clock:
 two runs of one scenario give identical traces.
+
+A scenario with a world (issue 4) also gets the links the world speaks to the host, in process and
+deterministic: the V2X radio as an in-process broadcast domain (`mem://sil-v2x-TAG`, receptions stamped
+with the scenario's epoch + simulated time), the GPS receiver's serial line as a `BytePipe`, and a
+second host reader of vehicle CAN for the odometry frames (wheel speeds, yaw rate).
 """
 
 from __future__ import annotations
 
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,18 +25,23 @@ import numpy as np
 
 from bywire.clock import SimClock
 from bywire.ecu.app import EcuApp, EcuConfig
-from bywire.hil.plant import Plant
+from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.recording import Recorder
 from bywire.hil.run_calibration import load_run_calibration
 from bywire.hil.scenario import Scenario
 from bywire.hil.sil_bus import SimVirtualBus
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, TraceWriter
+from bywire.hil.world.links import BytePipe
+from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.agent import HostAgent
 from bywire.protocol.canopen_node import HostMaster
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001
 RADAR_FILTER = [{"can_id": 0x300, "can_mask": 0x7FF, "extended": False}]  # RADAR_Target only
+ODOMETRY_FILTER = [  # GW_WheelSpeeds (0x120) and GW_Motion (0x121)
+    {"can_id": 0x120, "can_mask": 0x7FE, "extended": False},
+]
 
 
 @dataclass
@@ -39,6 +49,7 @@ class RunResult:
     plant: dict[str, np.ndarray]
     host: dict[str, np.ndarray] | None
     extra: dict[str, Any] = field(default_factory=dict)
+    traffic: dict[str, np.ndarray] | None = None  # the world's per-vehicle trace (hil.world.traffic)
 
 
 def open_scenario_vehicle(scenario: Scenario) -> FmuVehicle:
@@ -52,8 +63,10 @@ def run_sil(
     run_dir: Path | None = None,
     record: Path | None = None,
     progress: Callable[[float], None] | None = None,
+    leader_profile: Sequence[tuple[float, float]] = (),
 ) -> RunResult:
-    """Run `scenario` in lockstep and return the traces (also written to `run_dir` when given)."""
+    """Run `scenario` in lockstep and return the traces (also written to `run_dir` when given).
+    `leader_profile` replaces the speed of the world's `replay` vehicle (`--leader-profile CSV`)."""
     clock = SimClock(0.0)
     tag = uuid.uuid4().hex[:8]
     vehicle_ch, link_ch = f"sil-vehicle-{tag}", f"sil-link-{tag}"
@@ -72,8 +85,28 @@ def run_sil(
     host_trace = TraceWriter(run_dir / "host.csv" if run_dir else None, HOST_COLUMNS, flush_every=1000)
     vehicle = open_scenario_vehicle(scenario)
     host: HostAgent | None = None
+    world = scenario.world
+    traffic_trace = TraceWriter(
+        run_dir / "traffic.csv" if run_dir and (world or scenario.lead) else None,
+        TRAFFIC_COLUMNS,
+        flush_every=1000,
+    )
+    links = PlantLinks(traffic_trace=traffic_trace, replay_profile=tuple(leader_profile))
+    v2x_host: Any = None
+    v2x_plant: Any = None
+    gps_pipe: BytePipe | None = None
+    if world is not None:
+        from bywire.protocol.v2x.transport import MemV2xTransport
+
+        epoch = world.v2v.epoch_unix_s
+        v2x_plant = MemV2xTransport(f"mem://sil-v2x-{tag}", receive=False)
+        v2x_host = MemV2xTransport(f"mem://sil-v2x-{tag}", clock=lambda: epoch + clock.now())
+        gps_pipe = BytePipe()
+        links.v2x_send = v2x_plant.send
+        links.gps_write = gps_pipe.write
+        links.unix_time = lambda t: epoch + t
     try:
-        plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace)
+        plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace, links=links)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
         link = HostMaster(bus(link_ch), clock)
         host = HostAgent(
@@ -83,6 +116,10 @@ def run_sil(
             sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER),
             trace=host_trace,
             clock=clock,
+            v2x=v2x_host,
+            gps=gps_pipe,
+            vehicle_bus=bus(vehicle_ch, can_filters=ODOMETRY_FILTER) if world is not None else None,
+            unix_time=(lambda now: world.v2v.epoch_unix_s + now) if world is not None else None,
         )
         if recorder is not None and recorder.mcap is not None:
             host.store.add_tap(recorder.mcap.record)  # topics and frames in one file, one clock
@@ -106,14 +143,23 @@ def run_sil(
             "plant_collisions": plant.collisions,
             "host_runtime": host.summary(),
         }
+        if plant.world is not None:
+            extra["world"] = plant.world.summary()
+        if world is not None:
+            extra["gcdc"] = host.gcdc_summary()
     finally:
         if host is not None:
             host.close()
         plant_trace.close()
         host_trace.close()
+        traffic_trace.close()
+        for t in (v2x_host, v2x_plant):
+            if t is not None:
+                t.close()
         if recorder is not None:
             recorder.close()
         vehicle.close()
         for b in buses:
             b.shutdown()
-    return RunResult(plant=plant_trace.array(), host=host_trace.array(), extra=extra)
+    traffic = traffic_trace.array() if traffic_trace.rows else None
+    return RunResult(plant=plant_trace.array(), host=host_trace.array(), extra=extra, traffic=traffic)

@@ -50,7 +50,7 @@ HOST_COLUMNS = (
     "controller",
     "lead_gap_m",
 )
-CONTROLLERS = ("none", "script", "velocity", "following", "stopping", "position")
+CONTROLLERS = ("none", "script", "velocity", "following", "stopping", "position", "platoon", "emergency")
 
 
 class TraceWriter:

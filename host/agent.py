@@ -2,9 +2,11 @@
 
 The agent builds the runtime from a host configuration (`host.config`): the scenario's mission,
 the ECU link (status in, requests and heartbeat out), odometry, radar and lead tracker, and the
-longitudinal override controller of seed 000 section 11.2, each with its rate, deadline and
-failure policy. In SIL the driver calls `step(now_s)` every simulated millisecond and the runtime
-runs in lockstep; as a process (`bywire host run`) the runtime ticks on the wall clock.
+longitudinal override controller of seed 000 section 11.2 (or, in the `gcdc` configuration of issue 4,
+GPS, pose, V2V, world model and platoon control over the V2X link and the GPS line it is given), each
+with its rate, deadline and failure policy. In SIL the driver calls `step(now_s)` every simulated
+millisecond and the runtime runs in lockstep; as a process (`bywire host run`) the runtime ticks on
+the wall clock.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ class HostAgent:
         lockstep: bool = True,
         in_process_faults: bool = True,
         store: ObjectStore | None = None,
+        v2x: Any = None,
+        gps: Any = None,
+        vehicle_bus: can.BusABC | None = None,
+        unix_time: Callable[[float], float] | None = None,
     ) -> None:
         self.scenario = scenario
         self.t0_s = t0_s
@@ -52,7 +58,18 @@ class HostAgent:
         self.clock = clock or SimClock(t0_s)
         self.store = store or ObjectStore()
         self.trace = trace or TraceWriter(None, HOST_COLUMNS)
-        self.resources = HostResources(scenario, t0_s, link, sensor_bus, self.trace)
+        self.resources = HostResources(
+            scenario,
+            t0_s,
+            link,
+            sensor_bus,
+            self.trace,
+            v2x=v2x,
+            gps=gps,
+            vehicle_bus=vehicle_bus,
+            unix_time=unix_time,
+        )
+        self.resources.prepare_world(self.config.modules)
         # In HIL the runner freezes or kills the real process; in SIL the agent stops itself.
         self.in_process_faults = in_process_faults
         check_module_faults(scenario, self.config)
@@ -133,6 +150,26 @@ class HostAgent:
 
     def summary(self) -> dict[str, Any]:
         return self.runtime.summary()
+
+    def gcdc_summary(self) -> dict[str, Any]:
+        """What the cooperative modules counted (issue 4): V2V received / accepted / rejected by reason,
+        our CAMs sent, the pose server's dropped sentences and frozen fixes. Empty without them."""
+        from bywire.host.modules.gcdc_messages import POSE, V2V_RECEIVED, V2V_SENT
+
+        out: dict[str, Any] = {}
+        batch = self.store.latest(V2V_RECEIVED)
+        if batch is not None:
+            out["v2v_received"] = batch.received
+            out["v2v_accepted"] = batch.accepted
+            out["v2v_rejected"] = {rc.reason: rc.count for rc in batch.rejected}
+        cam = self.store.latest(V2V_SENT)
+        if cam is not None:
+            out["cam_sent"] = cam.count
+        pose = self.store.latest(POSE)
+        if pose is not None:
+            out["nmea_dropped"] = pose.nmea_dropped
+            out["frozen_fixes"] = pose.frozen_fixes
+        return out
 
     def close(self) -> None:
         if self._started:

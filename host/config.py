@@ -53,6 +53,11 @@ class HostConfig:
     live_view_port: int | None
     modules: tuple[ModuleConfig, ...]
     data: dict[str, Any] = field(default_factory=dict)  # as parsed (after `extends`): for recordings
+    v2x: str | None = None  # issue 4: the V2X link (v2x://... or mem://...)
+    gps_serial: str | None = None  # issue 4: the GPS/INS serial port
+
+    def uses(self, *kinds: str) -> bool:
+        return any(m.kind in kinds for m in self.modules)
 
     def module(self, name: str) -> ModuleConfig:
         for m in self.modules:
@@ -201,6 +206,14 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
     if sensor_bus is not None and not isinstance(sensor_bus, str):
         raise r.error("sensor_bus", f"expected a bus URL or null, got {sensor_bus!r}")
     scenario = r.string("scenario", default="demo")
+    v2x = r.raw("v2x")
+    if v2x is not None and not (isinstance(v2x, str) and v2x.startswith(("v2x://", "mem://"))):
+        raise r.error("v2x", f"expected a v2x://HOST:PORT or mem://NAME link, or null, got {v2x!r}")
+    gps_serial = r.raw("gps_serial")
+    if gps_serial is not None and not (isinstance(gps_serial, str) and gps_serial):
+        raise r.error(
+            "gps_serial", f"expected a serial port (a path or pyserial URL) or null, got {gps_serial!r}"
+        )
     rt = r.sub("runtime")
     tick_s = rt.number("tick_ms", default=1.0, lo=0.1, hi=100.0) / 1e3
     health_s = rt.number("health_period_ms", default=100.0, lo=1.0, hi=60_000.0) / 1e3
@@ -236,6 +249,8 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
         port if live else None,
         modules,
         copy.deepcopy(data),
+        v2x,
+        gps_serial,
     )
 
 

@@ -3,6 +3,10 @@
 CONFIG is a host configuration (a shipped name such as `default`, or a file; schema in
 docs/host_config.md); without it the scenario's `host.config` is used. Command-line bus URLs
 override the file's.
+
+Cooperative driving (issue 4, the `gcdc` configuration): `--v2x URL` is the V2X link (v2x://HOST:PORT UDP
+broadcast), `--gps-serial PORT` the GPS/INS receiver's serial port (a device, a pty, a pyserial URL);
+the odometry frames are read off the sensor bus by a second connection. V2V time stamps are UNIX time.
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +42,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--host-link", help="bus URL of the host<->ECU link (CANopen), CAN or Ethernet (udp://...)"
     )
     p.add_argument("--sensor-bus", help="bus URL where the radar frames arrive")
+    p.add_argument(
+        "--v2x", help="V2X link (v2x://HOST:PORT[?bind=..&iface=..]); default: the configuration's"
+    )
+    p.add_argument(
+        "--gps-serial", help="GPS/INS serial port (path or pyserial URL); default: the configuration's"
+    )
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
     p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
     p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
@@ -69,7 +80,30 @@ def main(args: argparse.Namespace) -> int:
     link_bus = open_bus(args.host_link or config.ecu_link)
     sensor_url = args.sensor_bus or config.sensor_bus
     sensor_bus = open_bus(sensor_url) if sensor_url else None
+    shared_sensor_bus: Any = sensor_bus
     trace = TraceWriter(args.trace, HOST_COLUMNS, flush_every=25)
+    v2x_url = args.v2x or config.v2x
+    gps_port = args.gps_serial or config.gps_serial
+    v2x: Any = None
+    gps: Any = None
+    vehicle_bus = None
+    if v2x_url:
+        from bywire.protocol.v2x.transport import open_v2x
+
+        v2x = open_v2x(v2x_url)
+    if gps_port:
+        from bywire.hil.world.links import SerialReader
+
+        gps = SerialReader(gps_port, clock.now)
+    if sensor_bus is not None and config.uses("vehicle_sensors"):
+        # One connection to vehicle CAN, two readers: the radar adapter and the odometry adapter.
+        from bywire.host.modules.fanout_bus import FanoutBus
+
+        fanout = FanoutBus(sensor_bus)
+        sensor_bus = fanout.view({0x300})  # type: ignore[assignment]  # RADAR_Target
+        vehicle_bus = fanout.view({0x120, 0x121})  # GW_WheelSpeeds, GW_Motion
+        shared_sensor_bus = fanout
+    unix_offset = time.time() - time.monotonic()
     recorder: Any = None  # McapRecorder when asked for
     live: Any = None  # LiveView when asked for
     if args.rt_priority:
@@ -89,6 +123,10 @@ def main(args: argparse.Namespace) -> int:
             clock=clock,
             lockstep=False,
             in_process_faults=False,
+            v2x=v2x,
+            gps=gps,
+            vehicle_bus=vehicle_bus,  # type: ignore[arg-type]
+            unix_time=lambda now: now + unix_offset,
         )
         if not agent.prestart():
             print("host: a worker process did not start; the supervisor will keep trying", flush=True)
@@ -117,13 +155,21 @@ def main(args: argparse.Namespace) -> int:
         if agent is not None:
             agent.close()
             if args.summary is not None:
-                args.summary.write_text(json.dumps(agent.summary(), indent=1, default=str), encoding="utf-8")
+                summary = agent.summary()
+                gcdc = agent.gcdc_summary()
+                if gcdc:
+                    summary["gcdc"] = gcdc
+                args.summary.write_text(json.dumps(summary, indent=1, default=str), encoding="utf-8")
         if recorder is not None:
             recorder.close()
         if live is not None:
             live.close()
         trace.close()
         link_bus.shutdown()
-        if sensor_bus is not None:
-            sensor_bus.shutdown()
+        if shared_sensor_bus is not None:
+            shared_sensor_bus.shutdown()
+        if v2x is not None:
+            v2x.close()
+        if gps is not None:
+            gps.close()
     return 0

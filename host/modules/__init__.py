@@ -3,6 +3,10 @@
 Each kind has a default declaration (inputs, outputs, rate, deadline) and a builder that makes a
 fresh instance from the configuration's parameters and the host's resources (the ECU link, the
 sensor bus, the trace). Kinds that need no resources can run in a worker process of their own.
+
+Issue 4 adds the cooperative-driving kinds of `host.modules.gcdc` (GPS, pose, V2V receive and send,
+vehicle sensors, world model, platoon control) and their resources (the V2X link, the GPS serial line,
+the vehicle bus for odometry, the wall-clock mapping of V2V time stamps).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import can
 
 from bywire.hil.scenario import Scenario
 from bywire.hil.trace import TraceWriter
+from bywire.host.modules import gcdc_messages as g
 from bywire.host.modules import messages as m
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
@@ -30,6 +35,53 @@ class HostResources:
     link: HostMaster | None = None
     sensor_bus: can.BusABC | None = None
     trace: TraceWriter | None = None
+    # Issue 4 (cooperative driving): the V2X link (`protocol.v2x.transport.open_v2x`), the GPS serial
+    # line (anything with read() -> bytes), a second reader of vehicle CAN for the odometry frames, and
+    # runtime time -> UNIX seconds (the V2V stamps' clock).
+    v2x: Any = None
+    gps: Any = None
+    vehicle_bus: can.BusABC | None = None
+    unix_time: Callable[[float], float] | None = None
+
+    # Built once per host (a pyproj frame takes ~0.1 s, a lane map ~1 s): a module's start must not
+    # spend its hang bound on them, nor a restart. `prepare_world` builds them before the runtime starts;
+    # otherwise (replay) on first use. Shared read-only by the modules.
+    _frame: Any = None
+    _lanemaps: dict[str | None, Any] | None = None
+
+    def local_frame(self) -> Any:
+        if self._frame is None:
+            from bywire.host.modules.gcdc import scenario_frame
+
+            self._frame = scenario_frame(self.scenario)
+        return self._frame
+
+    def lane_map(self, map_file: str | None = None) -> Any:
+        if self._lanemaps is None:
+            self._lanemaps = {}
+        if map_file not in self._lanemaps:
+            from bywire.host.modules.gcdc import scenario_lane_map
+
+            self._lanemaps[map_file] = scenario_lane_map(self.scenario, map_file)
+        return self._lanemaps[map_file]
+
+    def prepare_world(self, modules: Any) -> None:
+        """Build the shared world pieces the configured modules will ask for (see above)."""
+        for mod in modules:
+            if mod.kind in ("pose", "v2v_tx", "world_model"):
+                self.local_frame()
+            if mod.kind == "world_model":
+                self.lane_map(mod.params.get("map_file"))
+            if mod.kind in ("v2v_rx", "v2v_tx"):
+                from bywire.protocol.v2x.codec import compiled_spec
+
+                compiled_spec()  # the ASN.1 compile (~0.2 s) here, not in the first release
+
+    def unix_time_fn(self) -> Callable[[float], float]:
+        if self.unix_time is not None:
+            return self.unix_time
+        epoch = self.scenario.world.v2v.epoch_unix_s if self.scenario.world is not None else 1305374400.0
+        return lambda now_s: epoch + now_s - self.t0_s
 
 
 Builder = Callable[[Mapping[str, Any], "HostResources | None"], Module]
@@ -93,6 +145,74 @@ def _longitudinal(params: Mapping[str, Any], res: HostResources | None) -> Modul
     return LongitudinalModule(dict(params))
 
 
+def _gps_serial(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import GpsSerialIo
+
+    return GpsSerialIo(res.gps if res is not None else None)
+
+
+def _vehicle_sensors(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import VehicleSensorsIo
+
+    return VehicleSensorsIo(res.vehicle_bus if res is not None else None)
+
+
+def _station_id(params: Mapping[str, Any], res: HostResources | None) -> int:
+    if "station_id" in params:
+        return int(params["station_id"])
+    world = res.scenario.world if res is not None else None
+    return world.ego.station_id if world is not None else 1
+
+
+def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import V2vRxIo
+    from bywire.protocol.v2x.receiver import ReceiverParams
+
+    assert res is not None
+    blacklist = frozenset(int(s) for s in params.get("blacklist", ()))
+    return V2vRxIo(res.v2x, res.unix_time_fn(), _station_id(params, res), ReceiverParams(blacklist=blacklist))
+
+
+def _v2v_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import V2vTxIo
+
+    assert res is not None
+    return V2vTxIo(res.v2x, res.unix_time_fn(), res.local_frame(), _station_id(params, res))
+
+
+def _pose(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import PoseModule
+
+    assert res is not None
+    return PoseModule(res.local_frame())
+
+
+def _world_model(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import WorldModel
+    from bywire.host.world.radar_fusion import FusionConfig
+
+    assert res is not None
+    blacklist = frozenset(int(s) for s in params.get("blacklist", ()))
+    fusion = FusionConfig(
+        radar_range_m=float(params.get("radar_range_m", 50.0)),
+        blacklist=blacklist,
+        host_length_m=float(params.get("host_length_m", 4.77)),
+        horizon_s=11.0,  # the platoon QP's 10 s plus the world model's age (see PlatoonControl)
+        # A station changes lane only after a second (10 releases) of matches 1 m clearer than the other
+        # lane: a car near the line, with a noisy GPS, is not projected into ours (seed 003 IV-B).
+        lane_confirm_cycles=int(params.get("lane_confirm_cycles", 10)),
+        min_lane_margin_m=float(params.get("min_lane_margin_m", 1.0)),
+    )
+    lanemap = res.lane_map(params.get("map_file"))
+    return WorldModel(res.local_frame(), lanemap, fusion, int(params.get("max_leads", 10)))
+
+
+def _platoon(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.gcdc import PlatoonControl
+
+    return PlatoonControl(params)
+
+
 KINDS: dict[str, ModuleKind] = {
     k.kind: k
     for k in (
@@ -131,6 +251,49 @@ KINDS: dict[str, ModuleKind] = {
             _ecu_tx,
             doc="requests and heartbeat to the ECU",
             always_release=True,
+        ),
+        # Issue 4: cooperative driving (host.modules.gcdc)
+        ModuleKind("gps_serial", (), (g.GPS_NMEA,), 0.02, 0.010, _gps_serial, doc="GPS/INS serial line"),
+        ModuleKind(
+            "vehicle_sensors",
+            (),
+            (g.EGO_MOTION,),
+            0.02,
+            0.010,
+            _vehicle_sensors,
+            doc="odometry off vehicle CAN",
+        ),
+        ModuleKind(
+            "pose",
+            (g.GPS_NMEA, g.EGO_MOTION),
+            (g.POSE,),
+            0.02,
+            0.010,
+            _pose,
+            False,
+            "NMEA + odometry -> pose (seed 003 II-h)",
+        ),
+        ModuleKind("v2v_rx", (g.POSE,), (g.V2V_RECEIVED,), 0.02, 0.010, _v2v_rx, doc="hardened V2V receiver"),
+        ModuleKind("v2v_tx", (g.POSE,), (g.V2V_SENT,), 0.1, 0.010, _v2v_tx, doc="our CAM at 10-25 Hz"),
+        ModuleKind(
+            "world_model",
+            (g.V2V_RECEIVED, g.POSE, m.RADAR),
+            (g.WORLD_LEADS,),
+            0.1,
+            0.050,
+            _world_model,
+            False,
+            "vehicle manager + lane map + radar fusion (seed 003 IV)",
+        ),
+        ModuleKind(
+            "platoon_control",
+            (g.WORLD_LEADS, m.MISSION, m.ODOMETRY, SAFETY_LIMIT),
+            (m.CONTROL, g.PLATOON),
+            0.05,
+            0.020,
+            _platoon,
+            False,
+            "seed 003 V-C/V-D platoon strategy",
         ),
     )
 }

@@ -27,6 +27,13 @@ dropped, while the receiver catches up.
 
 Send: blocking `sendto` of one datagram; `PeriodicSender` runs a producer at the GCDC's 10-25 Hz on
 absolute monotonic deadlines (no drift), stamping each message with the wall-clock time of its slot.
+
+In one process (SIL, tests): `mem://NAME` is an in-process broadcast domain (`MemV2xTransport`) with the
+same send / poll / wait / close surface: every member that receives gets its own copy of every datagram
+(the sender's own too, as on loopback), stamped with the *receiver's* clock (inject a simulated one for
+lockstep runs). No socket, no thread: deterministic. A member's queue holds at most `max_queue`
+datagrams; beyond that they are dropped and counted in `kernel_drops`, like a full socket buffer.
+`open_v2x(url)` opens either kind by its scheme.
 """
 
 from __future__ import annotations
@@ -37,9 +44,11 @@ import select
 import socket
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
+from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 DEFAULT_PORT = 47100
@@ -248,6 +257,100 @@ class V2xTransport:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+MEM_DEFAULT_QUEUE = 65_536
+
+
+class MemV2xTransport:
+    """A member of the in-process broadcast domain `mem://NAME` (see the module docstring)."""
+
+    _domains: ClassVar[dict[str, list[MemV2xTransport]]] = {}
+
+    def __init__(
+        self,
+        address: str,
+        *,
+        receive: bool = True,
+        clock: Callable[[], float] = time.time,
+        max_queue: int = MEM_DEFAULT_QUEUE,
+    ) -> None:
+        parts = urlsplit(address)
+        name = (parts.netloc + parts.path).strip("/")
+        if parts.scheme != "mem" or not name or parts.query:
+            raise V2xUrlError(f"{address!r}: an in-process link is mem://NAME (e.g. mem://sil-v2x)")
+        self.name = name
+        self.url = f"mem://{name}"
+        self.receiving = receive
+        self.clock = clock
+        self.max_queue = max_queue
+        self.sent = 0
+        self.received = 0
+        self.send_errors = 0
+        self.kernel_drops = 0
+        self._queue: deque[Datagram] = deque()
+        self._source = ("mem", id(self) & 0xFFFF)
+        self._closed = False
+        MemV2xTransport._domains.setdefault(name, []).append(self)
+
+    def send(self, payload: bytes) -> bool:
+        if self._closed:
+            raise OSError(errno.EBADF, f"{self.url}: transport is closed")
+        if len(payload) > MAX_DATAGRAM_BYTES:
+            self.send_errors += 1
+            return False
+        data = bytes(payload)
+        for member in MemV2xTransport._domains.get(self.name, ()):
+            if not member.receiving:
+                continue
+            if len(member._queue) >= member.max_queue:
+                member.kernel_drops += 1
+                continue
+            t = member.clock()
+            member._queue.append(Datagram(data, self._source, t, t))
+        self.sent += 1
+        return True
+
+    def wait(self, timeout_s: float) -> bool:
+        """Never blocks (one thread holds every end in SIL): True if a datagram is waiting."""
+        if not self.receiving:
+            raise RuntimeError(f"{self.url}: transport opened with receive=False")
+        return bool(self._queue)
+
+    def poll(self, max_datagrams: int = 4096) -> list[Datagram]:
+        if not self.receiving:
+            raise RuntimeError(f"{self.url}: transport opened with receive=False")
+        n = min(max_datagrams, len(self._queue))
+        out = [self._queue.popleft() for _ in range(n)]
+        self.received += n
+        return out
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        members = MemV2xTransport._domains.get(self.name, [])
+        if self in members:
+            members.remove(self)
+        if not members:
+            MemV2xTransport._domains.pop(self.name, None)
+
+    def __enter__(self) -> MemV2xTransport:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def open_v2x(
+    url: str, *, receive: bool = True, clock: Callable[[], float] | None = None
+) -> V2xTransport | MemV2xTransport:
+    """`v2x://HOST:PORT...` (UDP broadcast) or `mem://NAME` (in process; `clock` stamps receptions)."""
+    if url.startswith("mem:"):
+        return MemV2xTransport(url, receive=receive, clock=clock or time.time)
+    return V2xTransport(url, receive=receive)
 
 
 class PeriodicSender:

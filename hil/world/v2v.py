@@ -1,0 +1,198 @@
+"""What the simulated vehicles and the road side broadcast (seed 003 Sec. III, IV-B, IV-C, VI).
+
+`V2vBroadcaster.due(t_s)` returns the datagrams (our CAM-shaped `protocol.v2x.codec` encoding) whose
+delivery time has come by scenario time t_s; the plant hands them to the V2X link (UDP broadcast on
+loopback in HIL, the in-process `mem://` domain in SIL). Deterministic for a seed.
+
+Per communicating vehicle (`V2vSenderSpec`), at `rate_hz` on epochs ``k / rate + phase`` (the phase spread
+by station id, as real senders are not synchronised): its state at the epoch, stamped with the epoch's
+wall time (`unix_time`, GNSS time in the GCDC), position with white noise per axis (`position_noise_m`),
+speed with `speed_noise_mps`, delivered `latency_s` later. The bad data of the issue:
+
+- frozen (a GPS outage under a bridge, seed 003 Fig. 6, Sec. VI): the broadcast position stays where it
+  was when the interval began; speed, heading and acceleration go on (they come from the car's odometry
+  and gyro), and the generation time advances;
+- silent: nothing is sent (seed 003 VI: "did not send anything at all");
+- late: `extra_s` more latency (outdated data), the generation time still the epoch's.
+
+Road side: a traffic light's RSU sends its signal group's phase and time to change at 10 Hz, a speed-limit
+sign its zone at 2 Hz, each from the stop line's / zone start's position on the road.
+
+A hostile sender (`FuzzSpec`): `protocol.v2x.fuzz.V2xFuzzer` floods the link with random and mutated
+datagrams at `rate_hz` during its interval, its fleet of fake vehicles placed 700 m beside the road (inside
+the receiver's 2 km vicinity, so their clean frames are accepted and reach the vehicle manager, but never
+on our lane) and never using a real station id (so the platoon's own senders keep their histories).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from bywire.hil.world.spec import FuzzSpec, RoadsideSpec, WorldSpec
+from bywire.hil.world.traffic import TrafficVehicle, World
+from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightPhase, TrafficLightState, VehicleState, encode
+from bywire.protocol.v2x.fuzz import V2xFuzzer
+from bywire.protocol.v2x.receiver import GeoPoint
+
+LIGHT_RATE_HZ = 10.0
+LIMIT_RATE_HZ = 2.0
+FUZZ_OFFSET_M = 700.0
+
+
+def _phase_at(rs: RoadsideSpec, t_s: float) -> tuple[str, float | None]:
+    """The light's phase at t_s and the time until its next change (None: no change scripted)."""
+    phase = rs.phases[0][1]
+    nxt: float | None = None
+    for t_p, p in rs.phases:
+        if t_p <= t_s:
+            phase = p
+        else:
+            nxt = t_p - t_s
+            break
+    return phase, nxt
+
+
+class V2vBroadcaster:
+    def __init__(self, world: World, unix_time: Callable[[float], float], seed: int = 1) -> None:
+        self.world = world
+        self.spec: WorldSpec = world.spec
+        self.unix_time = unix_time
+        self.rng = np.random.default_rng(seed + 7919)
+        self._queue: list[tuple[float, int, bytes]] = []
+        self._seq = 0
+        self._next: dict[int, float] = {}
+        self._frozen_at: dict[int, tuple[float, float]] = {}
+        self._last_fix: dict[int, tuple[float, float]] = {}
+        for v in world.vehicles:
+            if v.spec.v2v is not None:
+                period = 1.0 / v.spec.v2v.rate_hz
+                self._next[v.index] = (v.spec.v2v.station_id * 0.6180339887 % 1.0) * period
+        self._next_light = 0.0
+        self._next_limit = 0.0
+        self.sent = 0
+        self.fuzzer: V2xFuzzer | None = None
+        self._fuzz_next = math.inf
+        fz = self.spec.fuzz
+        if fz is not None:
+            self.fuzzer = self._make_fuzzer(fz)
+            self._fuzz_next = fz.at_s
+        self.fuzz_sent = 0
+
+    def _make_fuzzer(self, fz: FuzzSpec) -> V2xFuzzer:
+        road = self.world.road
+        h = math.radians(self.spec.road.heading_deg)
+        # Beside the road, to the left of its start: inside the vicinity gate, never on a lane.
+        lat, lon = road.frame.to_geodetic(-FUZZ_OFFSET_M * math.sin(h), FUZZ_OFFSET_M * math.cos(h))
+        return V2xFuzzer(
+            fz.seed,
+            center=GeoPoint(lat, lon),
+            own_station_id=self.spec.ego.station_id,
+            avoid_station_ids=frozenset(self.spec.station_ids)
+            | frozenset(rs.station_id for rs in self.spec.roadside),
+        )
+
+    def _push(self, deliver_s: float, payload: bytes) -> None:
+        heapq.heappush(self._queue, (deliver_s, self._seq, payload))
+        self._seq += 1
+
+    def _vehicle_state(self, v: TrafficVehicle, epoch: float) -> VehicleState:
+        assert v.spec.v2v is not None
+        sd = v.spec.v2v
+        w = self.world
+        pose = w.pose_of(v)
+        x, y = pose.x_m, pose.y_m
+        if sd.position_noise_m > 0.0:
+            nx, ny = self.rng.normal(0.0, sd.position_noise_m, 2)
+            x, y = x + float(nx), y + float(ny)
+        if any(iv.active(epoch) for iv in sd.frozen):
+            # The receiver repeats its last fix exactly (noise included): that is what makes it frozen.
+            x, y = self._frozen_at.setdefault(v.index, self._last_fix.get(v.index, (x, y)))
+        else:
+            self._frozen_at.pop(v.index, None)
+            self._last_fix[v.index] = (x, y)
+        lat, lon = w.road.frame.to_geodetic(x, y)
+        azimuth = w.road.frame.true_azimuth_from_heading(pose.heading_rad, lat, lon)
+        speed = max(
+            0.0, v.v_mps + float(self.rng.normal(0.0, sd.speed_noise_mps)) if sd.speed_noise_mps else v.v_mps
+        )
+        return VehicleState(
+            station_id=sd.station_id,
+            generation_time_s=self.unix_time(epoch),
+            lat_deg=lat,
+            lon_deg=lon,
+            heading_rad=math.atan2(
+                math.sin(math.radians(90.0 - azimuth)), math.cos(math.radians(90.0 - azimuth))
+            ),
+            speed_mps=speed,
+            yaw_rate_radps=0.0,
+            accel_mps2=min(max(v.a_mps2, -16.0), 16.0),
+            length_m=v.spec.length_m,
+            width_m=v.spec.width_m,
+        )
+
+    def _roadside(self, rs: RoadsideSpec, t_s: float) -> bytes:
+        road = self.world.road
+        p = road.pose_at(0 if rs.lane is None else rs.lane, rs.s_m)
+        lat, lon = road.frame.to_geodetic(p.x_m, p.y_m)
+        gen = self.unix_time(t_s)
+        if rs.kind == "speed_limit":
+            return encode(SpeedLimit(rs.station_id, gen, rs.station_id & 0xFFFF, lat, lon, rs.limit_mps))
+        phase, ttc = _phase_at(rs, t_s)
+        return encode(
+            TrafficLightState(
+                rs.station_id,
+                gen,
+                rs.intersection_id,
+                rs.signal_group,
+                lat,
+                lon,
+                TrafficLightPhase(phase),
+                None if ttc is None else min(ttc, 300.0),
+            )
+        )
+
+    def due(self, t_s: float) -> list[bytes]:
+        """Datagrams delivered by t_s, in delivery order (call at the plant's events)."""
+        for v in self.world.vehicles:
+            nxt = self._next.get(v.index)
+            if nxt is None or not v.present:
+                continue
+            sd = v.spec.v2v
+            assert sd is not None
+            period = 1.0 / sd.rate_hz
+            while nxt <= t_s:
+                if not any(iv.active(nxt) for iv in sd.silent):
+                    latency = sd.latency_s + sum(extra for iv, extra in sd.late_s if iv.active(nxt))
+                    self._push(nxt + latency, encode(self._vehicle_state(v, nxt)))
+                nxt += period
+            self._next[v.index] = nxt
+        while self.spec.roadside and self._next_light <= t_s:
+            for rs in self.spec.roadside:
+                if rs.kind == "traffic_light":
+                    self._push(self._next_light + 0.01, self._roadside(rs, self._next_light))
+            self._next_light += 1.0 / LIGHT_RATE_HZ
+        while self.spec.roadside and self._next_limit <= t_s:
+            for rs in self.spec.roadside:
+                if rs.kind == "speed_limit":
+                    self._push(self._next_limit + 0.01, self._roadside(rs, self._next_limit))
+            self._next_limit += 1.0 / LIMIT_RATE_HZ
+        fz = self.spec.fuzz
+        if self.fuzzer is not None and fz is not None:
+            end = fz.at_s + fz.duration_s
+            while self._fuzz_next <= min(t_s, end):
+                _, frame = self.fuzzer.next(self.unix_time(self._fuzz_next))
+                self._push(self._fuzz_next, frame)
+                self.fuzz_sent += 1
+                self._fuzz_next += 1.0 / fz.rate_hz
+        out = []
+        while self._queue and self._queue[0][0] <= t_s:
+            out.append(heapq.heappop(self._queue)[2])
+        self.sent += len(out)
+        return out
+
+
+__all__ = ["V2vBroadcaster"]
