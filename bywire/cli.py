@@ -54,7 +54,7 @@ _TIMED_BENCHES = {
     "platoon": "the follow-control QP and the 10-vehicle platoon step, vs. cvxpy (issue 4)",
     "v2x": "V2X codec and hardened receiver per message, vs. struct (issue 4)",
     "world": "world model: lane-map match, vehicle prediction, pose filter (issue 4)",
-    "urban": "moving-traffic check, intersection precedence, lateral controller (issue 5)",
+    "urban": "moving-traffic check, intersection precedence, lateral controller, HSM step (issue 5)",
 }
 _BENCH_MODULES = {
     "platoon": "bywire.host.platoon.bench",
@@ -149,6 +149,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     roadnet_cli.add_mission_plan_arguments(
         mission.add_parser("plan", help="the fastest route through an MDF's checkpoints, in order")
+    )
+
+    from bywire.host.behaviour import diagram
+
+    behaviour = sub.add_parser("behaviour", help="the urban behaviour (issue 5)").add_subparsers(
+        dest="behaviour_command", required=True, metavar="COMMAND"
+    )
+    diagram.add_arguments(
+        behaviour.add_parser(
+            "diagram", help="the hierarchical state machine, generated from the code (Mermaid or PNG)"
+        )
     )
 
     from bywire.protocol.v2x import v2x_cli
@@ -276,6 +287,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.command == "rndf":
                 return roadnet_cli.main_rndf_check(args)
             return roadnet_cli.main_mission_plan(args)
+        if args.command == "behaviour":
+            from bywire.host.behaviour import diagram
+
+            return diagram.main(args)
         if args.command == "v2x":
             from bywire.protocol.v2x import v2x_cli
 
