@@ -1,7 +1,8 @@
 """Local metric coordinates of a road network (seed 000 sec. 8 works in a local plane; x east, y north, m).
 
-`TransverseMercator(lat0, lon0)`: a transverse Mercator projection on the WGS84 ellipsoid whose central
-meridian and origin are the network's first waypoint, scale 1 there (pyproj ``+proj=tmerc``).  Over the few
+`TransverseMercator(lat0, lon0)` (the host's one frame, `bywire.host.geo.LocalFrame`): a transverse
+Mercator projection on the WGS84 ellipsoid whose central meridian and origin are the network's first
+waypoint, scale 1 there (pyproj ``+proj=tmerc``).  Over the few
 kilometres of an Urban Challenge network its scale error is below 1e-6 (1 mm per km) and its grid north
 departs from true north by less than 0.01 deg, so x/y are, for driving purposes, the east/north metres of
 a local tangent plane (ENU) - with an exact inverse, which a plain ENU plane lacks.
@@ -15,19 +16,20 @@ samples), the identity: the file's first number is x, the second y.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
-from pyproj import Transformer
+
+from bywire.host.geo import LocalFrame
 
 from .rndf import RoadNetwork
 
 FloatArray = npt.NDArray[np.float64]
 
 
-class LocalFrame(Protocol):
+class CoordinateFrame(Protocol):
     """File coordinates (lat, lon as written) <-> local metres (x east, y north)."""
 
     def to_xy(self, lat: npt.ArrayLike, lon: npt.ArrayLike) -> tuple[FloatArray, FloatArray]: ...
@@ -35,33 +37,8 @@ class LocalFrame(Protocol):
     def to_latlon(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]: ...
 
 
-@dataclass(frozen=True)
-class TransverseMercator:
-    """Local transverse Mercator frame centred on (lat0_deg, lon0_deg): that point is x = y = 0."""
-
-    lat0_deg: float
-    lon0_deg: float
-    _fwd: Transformer = field(init=False, repr=False, compare=False)
-    _inv: Transformer = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        if not (-90.0 < self.lat0_deg < 90.0 and -180.0 <= self.lon0_deg <= 180.0):
-            raise ValueError(f"origin ({self.lat0_deg}, {self.lon0_deg}) is not a latitude/longitude")
-        proj = (
-            f"+proj=tmerc +lat_0={self.lat0_deg!r} +lon_0={self.lon0_deg!r} +k_0=1 +x_0=0 +y_0=0 "
-            "+ellps=WGS84 +units=m +no_defs"
-        )
-        # always_xy: (lon, lat) in, (x, y) out, whatever the CRS axis order says
-        object.__setattr__(self, "_fwd", Transformer.from_crs("EPSG:4326", proj, always_xy=True))
-        object.__setattr__(self, "_inv", Transformer.from_crs(proj, "EPSG:4326", always_xy=True))
-
-    def to_xy(self, lat: npt.ArrayLike, lon: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-        x, y = self._fwd.transform(np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64))
-        return np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-
-    def to_latlon(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-        lon, lat = self._inv.transform(np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64))
-        return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+# The host's one transverse Mercator frame (bywire.host.geo), here named for what it is.
+TransverseMercator = LocalFrame
 
 
 @dataclass(frozen=True)
@@ -75,7 +52,7 @@ class PlanarFrame:
         return np.array(x_m, dtype=np.float64), np.array(y_m, dtype=np.float64)
 
 
-def frame_for(network: RoadNetwork) -> LocalFrame:
+def frame_for(network: RoadNetwork) -> CoordinateFrame:
     """The network's local frame: origin at its first waypoint (first lane's, else first perimeter's)."""
     if network.coordinates == "local_m":
         return PlanarFrame()

@@ -50,7 +50,7 @@ import networkx as nx
 import numpy as np
 
 from .errors import ParseWarning
-from .geo import LocalFrame, frame_for
+from .geo import CoordinateFrame, frame_for
 from .ids import LaneId, WaypointId
 from .mdf import Mission, ResolvedMission
 from .path import DEFAULT_STEP_M, Path, PathPoint, concat, connector, smooth_curve, wrap_angle
@@ -151,7 +151,7 @@ class _LaneGeometry:
 class RoadGraph:
     """Vertices, edges with geometry and annotations, and the lookups the planners need."""
 
-    def __init__(self, network: RoadNetwork, frame: LocalFrame, params: GraphParams) -> None:
+    def __init__(self, network: RoadNetwork, frame: CoordinateFrame, params: GraphParams) -> None:
         self.network = network
         self.frame = frame
         self.params = params
@@ -274,7 +274,7 @@ def build_graph(
     network: RoadNetwork,
     mission: Mission | ResolvedMission | None = None,
     params: GraphParams | None = None,
-    frame: LocalFrame | None = None,
+    frame: CoordinateFrame | None = None,
 ) -> RoadGraph:
     """The geometric graph of `network`, speed limits from `mission` (if given)."""
     params = params or GraphParams()
