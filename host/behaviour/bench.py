@@ -23,15 +23,14 @@ Each row also gives ``ratio_p50``: its median over the baseline's. Contract (``-
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bywire.bench_cli import add_timed_arguments, run_timed
 from bywire.host.lateral import LateralParams, PathSamples, VehiclePose, lateral_step
 from bywire.host.longitudinal import LongitudinalParams, LongitudinalState, longitudinal_step
 from bywire.host.roadnet.graph import build_graph
@@ -303,23 +302,8 @@ def _print_table(doc: dict[str, Any]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", type=Path, help="write the results as JSON")
-    p.add_argument(
-        "--seconds",
-        type=float,
-        default=DEFAULT_SECONDS,
-        help=f"roughly how long to measure (default {DEFAULT_SECONDS:.0f})",
-    )
+    add_timed_arguments(p, DEFAULT_SECONDS, "to measure")
 
 
 def main(args: argparse.Namespace) -> int:
-    seconds = DEFAULT_SECONDS if getattr(args, "seconds", None) is None else float(args.seconds)
-    if not (math.isfinite(seconds) and seconds > 0.0):
-        print(f"bywire bench urban: --seconds {seconds} must be > 0")
-        return 2
-    doc = run(seconds)
-    _print_table(doc)
-    if getattr(args, "json", None) is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return 0
+    return run_timed(args, "urban", DEFAULT_SECONDS, run, _print_table)

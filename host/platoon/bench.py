@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bywire.bench_cli import add_timed_arguments, run_timed
 
 from .follow_qp import FollowParams, FollowQP, LeaderPrediction, follow_oracle
 from .strategy import PlatoonStrategy
@@ -169,20 +169,8 @@ def _print_table(doc: dict[str, Any]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", type=Path, help="write the results as JSON")
-    p.add_argument(
-        "--seconds",
-        type=float,
-        default=DEFAULT_SECONDS,
-        help=f"roughly how long the whole run takes (default {DEFAULT_SECONDS:.0f})",
-    )
+    add_timed_arguments(p, DEFAULT_SECONDS, "the whole run takes")
 
 
 def main(args: argparse.Namespace) -> int:
-    seconds = DEFAULT_SECONDS if getattr(args, "seconds", None) is None else float(args.seconds)
-    doc = run(seconds)
-    _print_table(doc)
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return 0
+    return run_timed(args, "platoon", DEFAULT_SECONDS, run, _print_table)

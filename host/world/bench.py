@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bywire.bench_cli import add_timed_arguments, run_timed
 
 from .geo import LocalFrame
 from .lanemap import LaneMap, record_lane
@@ -223,20 +223,8 @@ def _print_table(doc: dict[str, Any]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
-    p.add_argument(
-        "--seconds",
-        type=float,
-        default=DEFAULT_SECONDS,
-        help=f"roughly how long the timed part takes (default {DEFAULT_SECONDS:.0f})",
-    )
+    add_timed_arguments(p, DEFAULT_SECONDS, "the timed part takes")
 
 
 def main(args: argparse.Namespace) -> int:
-    seconds = DEFAULT_SECONDS if getattr(args, "seconds", None) is None else float(args.seconds)
-    doc = run(seconds)
-    _print_table(doc)
-    if getattr(args, "json", None) is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return 0
+    return run_timed(args, "world", DEFAULT_SECONDS, run, _print_table)

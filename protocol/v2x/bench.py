@@ -23,14 +23,13 @@ from __future__ import annotations
 import argparse
 import base64
 import dataclasses
-import json
 import math
 import struct
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
+
+from bywire.bench_cli import add_timed_arguments, run_timed
 
 from .codec import (
     DriveDirection,
@@ -236,16 +235,8 @@ def _print_table(doc: dict[str, Any]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seconds", type=float, default=DEFAULT_SECONDS, help="total measuring time (default 6)")
-    p.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
+    add_timed_arguments(p, DEFAULT_SECONDS, "the measuring takes")
 
 
 def main(args: argparse.Namespace) -> int:
-    if not (math.isfinite(args.seconds) and args.seconds > 0):
-        print(f"bench v2x: --seconds {args.seconds} must be > 0", file=sys.stderr)
-        return 2
-    doc = run(args.seconds)
-    _print_table(doc)
-    if args.json is not None:
-        args.json.write_text(json.dumps(doc, indent=2) + "\n")
-    return 0
+    return run_timed(args, "v2x", DEFAULT_SECONDS, run, _print_table)
