@@ -115,10 +115,17 @@ def _ecu_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
 
 
 def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.ecu_link import EcuTx
+    from bywire.host.modules.ecu_link import REQUEST_MAX_AGE_S, EcuTx
 
     assert res is not None and res.link is not None
-    return EcuTx(res.link, res.trace, res.t0_s)
+    p = dict(params)
+    max_age_ms = p.pop("request_max_age_ms", REQUEST_MAX_AGE_S * 1e3)
+    if p:
+        raise ValueError(f"ecu_tx: unknown params {sorted(p)} (known: request_max_age_ms)")
+    number = isinstance(max_age_ms, int | float) and not isinstance(max_age_ms, bool)
+    if not number or not 20 <= max_age_ms <= 1000:
+        raise ValueError(f"ecu_tx: params.request_max_age_ms must be in 20..1000 ms, got {max_age_ms!r}")
+    return EcuTx(res.link, res.trace, res.t0_s, request_max_age_s=max_age_ms / 1e3)
 
 
 def _odometry(params: Mapping[str, Any], res: HostResources | None) -> Module:

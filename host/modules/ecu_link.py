@@ -35,7 +35,10 @@ from bywire.protocol.canopen_node import HostMaster, NmtState
 from bywire.protocol.ecu_types import RequestFlags
 from bywire.protocol.host_link import HostRequest
 
-REQUEST_MAX_AGE_S = 0.1  # 5 host periods: older control requests are not sent
+# 5 host periods: older control requests are not sent (a controlled stop is asked for instead).
+# A configuration whose controller runs slower, or behind a slower producer, may allow more
+# (`ecu_tx` params.request_max_age_ms); the ECU's heartbeat watchdog is independent of it.
+REQUEST_MAX_AGE_S = 0.1
 NMT_START_RETRY_S = 0.2
 
 
@@ -76,8 +79,15 @@ class EcuRx(Module):
 
 
 class EcuTx(Module):
-    def __init__(self, link: HostMaster, trace: TraceWriter | None = None, t0_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        link: HostMaster,
+        trace: TraceWriter | None = None,
+        t0_s: float = 0.0,
+        request_max_age_s: float = REQUEST_MAX_AGE_S,
+    ) -> None:
         self.link = link
+        self.request_max_age_s = request_max_age_s
         self.trace = trace
         self.t0_s = t0_s
         self.counter = 0
@@ -92,7 +102,7 @@ class EcuTx(Module):
             self._next_nmt_start_s = now + NMT_START_RETRY_S
         req: ControlRequest | None = ctx.latest(CONTROL)
         mission: MissionCommand | None = ctx.latest(MISSION)
-        if req is not None and now - req.t_s <= REQUEST_MAX_AGE_S:
+        if req is not None and now - req.t_s <= self.request_max_age_s:
             accel, steer, flags, age_ms = (
                 req.accel_mps2,
                 req.steer_rad,
