@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 from bywire.host.platoon import bench
-from bywire.host.platoon.follow_qp import FollowParams, FollowQP, HeadwayRef, LeaderPrediction, follow_oracle
+from bywire.host.platoon.follow_qp import (
+    AccelRef,
+    FollowParams,
+    FollowQP,
+    HeadwayRef,
+    LeaderPrediction,
+    follow_oracle,
+)
 from bywire.host.platoon.strategy import PlatoonStrategy
 
 # Agreement of the fast path with the oracle. The command is a second difference, 2 x^1 / dt^2, so position
@@ -21,9 +28,14 @@ POS_TOL_M = 1e-2  # planned positions; near standstill the tail is flat in the c
 LIMIT_TOL = 1e-4  # on a^j [m/s^2] and v^j [m/s] from the returned positions (interior-point slack)
 
 
-@pytest.mark.parametrize(("dt_s", "headway_ref"), [(0.2, "host"), (0.1, "host"), (0.2, "leader")])
-def test_fast_path_agrees_with_oracle_on_random_problems(dt_s: float, headway_ref: HeadwayRef) -> None:
-    params = FollowParams(dt_s=dt_s, headway_ref=headway_ref)
+@pytest.mark.parametrize(
+    ("dt_s", "headway_ref", "accel_ref"),
+    [(0.2, "host", "zero"), (0.1, "host", "zero"), (0.2, "leader", "zero"), (0.2, "host", "leader")],
+)
+def test_fast_path_agrees_with_oracle_on_random_problems(
+    dt_s: float, headway_ref: HeadwayRef, accel_ref: AccelRef
+) -> None:
+    params = FollowParams(dt_s=dt_s, headway_ref=headway_ref, accel_ref=accel_ref)
     qp = FollowQP(params)
     rng = np.random.default_rng(20110514 + int(dt_s * 10))
     n_infeasible = 0
@@ -39,6 +51,25 @@ def test_fast_path_agrees_with_oracle_on_random_problems(dt_s: float, headway_re
         assert abs(f.accel_cmd_mps2 - o.accel_cmd_mps2) <= ACCEL_TOL_MPS2
         assert np.max(np.abs(f.positions_m - o.positions_m)) <= POS_TOL_M
     assert n_infeasible < 40
+
+
+def test_a_penalty_relative_to_the_leader_passes_its_acceleration_on() -> None:
+    """At the desired gap and speed behind a leader accelerating at 1 m/s^2, the paper's absolute
+    penalty plans less than the leader's acceleration; the relative one follows it."""
+    base = FollowParams(reserve_m=8.0, min_gap_m=None)
+    v0 = 20.0
+    gap = base.reserve_m + base.headway_s * v0
+    leader = LeaderPrediction.constant_accel(gap, v0, 1.0, base)
+    absolute = FollowQP(base).solve(v0, leader).accel_cmd_mps2
+    relative = FollowQP(FollowParams(reserve_m=8.0, min_gap_m=None, accel_ref="leader")).solve(v0, leader)
+    assert absolute < 0.5 < relative.accel_cmd_mps2 <= 1.0 + 1e-3
+
+
+def test_bad_references_are_refused() -> None:
+    with pytest.raises(ValueError, match="accel_ref"):
+        FollowParams(accel_ref="lead")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="headway_ref"):
+        FollowParams(headway_ref="ego")  # type: ignore[arg-type]
 
 
 def test_solution_respects_limits() -> None:

@@ -9,7 +9,10 @@ Cost (eq. 3, each term times ``dt`` so that it approximates the integral of eq. 
 the same at every ``dt``)::
 
     J = dt * [ sum_{j=1}^{m-2} w_dist (Delta d^j)^2 + w_vel (v_lead^j - v^j)^2
-             + sum_{j=0}^{m-2} w_acc (a^j)^2 ],     Delta d^j = x_lead^j - r - t_h * v^j - x^j
+             + sum_{j=0}^{m-2} w_acc (a^j - a_ref^j)^2 ],     Delta d^j = x_lead^j - r - t_h * v^j - x^j
+
+(a_ref = 0 in the paper; ``accel_ref="leader"`` penalises the difference to the leader's predicted
+acceleration instead, see below.)
 
 with central differences ``v^j = (x^{j+1} - x^{j-1}) / (2 dt)`` and
 ``a^j = (x^{j+1} - 2 x^j + x^{j-1}) / dt^2``.
@@ -53,6 +56,12 @@ Further deviations:
   that case. Both agree in steady state (``v = v_lead``); the host form is the usual constant time gap.
   The headway is therefore in P: one `FollowQP` per headway (the strategy keeps one per vehicle).
 
+- Acceleration penalty relative to the leader (``accel_ref="leader"``, off by default): the paper's
+  ``w_acc a^2`` pulls every planned acceleration toward zero, so the plan passes on only part of a
+  leader's predicted acceleration and the follower acts like a constant-time-gap PD on the gap error,
+  which at h = 0.6 s amplifies low-frequency disturbances (host/modules/gcdc.py). ``w_acc (a -
+  a_lead)^2`` keeps the smoothing but around the leader's predicted profile (the cooperative
+  feed-forward of CACC, inside the QP, with the prediction's own limits). Still a QP: only q changes.
 - Velocity limits are relaxed to what the acceleration limits can reach from the current speed
   (mid-step speed ``<= max(v_max, v_0 + a_min (t_j + dt/2))``, symmetric below), so a measured speed
   slightly outside ``[v_min, v_max]`` (noise, a downhill) does not make the QP infeasible. Forward
@@ -83,6 +92,7 @@ import scipy.sparse as sp
 
 FloatArray = npt.NDArray[np.float64]
 HeadwayRef = Literal["host", "leader"]
+AccelRef = Literal["zero", "leader"]
 
 KMH_TO_MPS = 1.0 / 3.6
 
@@ -109,6 +119,15 @@ class FollowParams:
     min_gap_m: float | None = 2.0
     # Whose speed the headway multiplies: "host" (default, deviation) or "leader" (the paper's eq. 3).
     headway_ref: HeadwayRef = "host"
+    # What the acceleration penalty measures from: "zero" (the paper's eq. 3: w_acc a^2) or "leader"
+    # (deviation: w_acc (a - a_lead)^2, a_lead from the leader's predicted speeds).
+    accel_ref: AccelRef = "zero"
+
+    def __post_init__(self) -> None:
+        if self.headway_ref not in ("host", "leader"):
+            raise ValueError(f"headway_ref must be 'host' or 'leader', got {self.headway_ref!r}")
+        if self.accel_ref not in ("zero", "leader"):
+            raise ValueError(f"accel_ref must be 'zero' or 'leader', got {self.accel_ref!r}")
 
     @property
     def n_samples(self) -> int:
@@ -201,6 +220,19 @@ def _targets(params: FollowParams, leader: LeaderPrediction) -> tuple[FloatArray
     return xl - params.reserve_m, vl
 
 
+def _accel_targets(params: FollowParams, leader: LeaderPrediction) -> FloatArray:
+    """The acceleration a^j (j = 0..m-2) is penalised against: zero, or the leader's predicted
+    acceleration (central differences of its predicted speeds, one-sided at j = 0)."""
+    m = params.n_samples
+    if params.accel_ref == "zero":
+        return np.zeros(m - 1)
+    v = leader.speeds_mps
+    a = np.empty(m - 1)
+    a[0] = (v[1] - v[0]) / params.dt_s
+    a[1:] = (v[2:] - v[:-2]) / (2.0 * params.dt_s)
+    return a
+
+
 def _check_shapes(params: FollowParams, leader: LeaderPrediction) -> None:
     m = params.n_samples
     if leader.positions_m.shape != (m,) or leader.speeds_mps.shape != (m,):
@@ -272,7 +304,8 @@ class FollowQP:
     def _vectors(self, speed_mps: float, leader: LeaderPrediction) -> tuple[FloatArray, FloatArray]:
         p = self.params
         g, vl = _targets(p, leader)
-        c = np.concatenate((-self._sd * g, self._sa * self._acc_v0 * speed_mps, -self._sv * vl))
+        a_ref = _accel_targets(p, leader)
+        c = np.concatenate((-self._sd * g, self._sa * (self._acc_v0 * speed_mps - a_ref), -self._sv * vl))
         q = self._q_map @ c
         a_v0 = self._acc_v0 * speed_mps
         v_up, v_lo = _speed_envelope(p, speed_mps)
@@ -329,6 +362,7 @@ class _OracleProblem:
     v0: cp.Parameter
     goal: cp.Parameter
     vlead: cp.Parameter
+    aref: cp.Parameter
     v_up: cp.Parameter
     v_lo: cp.Parameter
     x_cap: cp.Parameter | None
@@ -343,6 +377,7 @@ def _oracle_problem(p: FollowParams) -> _OracleProblem:
     v0 = cp.Parameter()
     goal = cp.Parameter(m - 2)
     vlead = cp.Parameter(m - 2)
+    aref = cp.Parameter(m - 1)
     v_up = cp.Parameter(m - 1)
     v_lo = cp.Parameter(m - 1)
     ghost = cp.reshape(z[0] - 2.0 * dt * v0, (1,), order="C")
@@ -355,7 +390,7 @@ def _oracle_problem(p: FollowParams) -> _OracleProblem:
     cost = dt * (
         p.w_dist * cp.sum_squares(goal - dist)
         + p.w_vel * cp.sum_squares(vlead - vel)
-        + p.w_acc * cp.sum_squares(acc)
+        + p.w_acc * cp.sum_squares(acc - aref)
     )
     cons = [acc >= p.accel_min_mps2, acc <= p.accel_max_mps2, fwd <= v_up, fwd >= v_lo]
     x_cap = None
@@ -363,7 +398,7 @@ def _oracle_problem(p: FollowParams) -> _OracleProblem:
         x_cap = cp.Parameter(m - 1)
         cons.append(z <= x_cap)
     prob = cp.Problem(cp.Minimize(cost), cons)
-    return _OracleProblem(prob, z, v0, goal, vlead, v_up, v_lo, x_cap)
+    return _OracleProblem(prob, z, v0, goal, vlead, aref, v_up, v_lo, x_cap)
 
 
 def follow_oracle(params: FollowParams, speed_mps: float, leader: LeaderPrediction) -> FollowResult:
@@ -375,6 +410,7 @@ def follow_oracle(params: FollowParams, speed_mps: float, leader: LeaderPredicti
     op.v0.value = speed_mps
     op.goal.value = g
     op.vlead.value = vl
+    op.aref.value = _accel_targets(params, leader)
     op.v_up.value = v_up
     op.v_lo.value = v_lo
     if op.x_cap is not None and params.min_gap_m is not None:
