@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from bywire.hil.run import run_scenario
 from bywire.hil.scenario import builtin_scenarios, load_scenario
@@ -40,6 +41,15 @@ FAULT_SCENARIOS = (
 )
 
 
+def _runs_here(path: Path) -> bool:
+    """The spine's and the platoon's scenarios; the urban missions (minutes to tens of minutes of
+    driving) have their own bounded tests (tests/test_urban_*.py) and a slow full campaign."""
+    return "urban" not in (yaml.safe_load(path.read_text()) or {})
+
+
+SCENARIOS = sorted(name for name, path in builtin_scenarios().items() if _runs_here(path))
+
+
 def test_contract_scenarios_are_shipped() -> None:
     assert set(CONTRACT_SCENARIOS) <= set(builtin_scenarios())
 
@@ -48,14 +58,14 @@ def test_contract_scenarios_are_shipped() -> None:
 def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
     out: dict[str, dict] = {}
     root = tmp_path_factory.mktemp("sil")
-    for name in builtin_scenarios():
+    for name in SCENARIOS:
         json_path = root / f"{name}.json"
         out[name] = run_scenario(name, mode="sil", json_path=json_path)
         out[name]["_json_path"] = json_path
     return out
 
 
-@pytest.mark.parametrize("name", sorted(builtin_scenarios()))
+@pytest.mark.parametrize("name", SCENARIOS)
 def test_scenario_passes_in_sil(results: dict[str, dict], name: str) -> None:
     result = results[name]
     failed = [c for c in result["checks"] if not c["passed"]]
