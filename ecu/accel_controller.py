@@ -204,6 +204,11 @@ def coast_accel_mps2(m: CoastMap, speed_mps: float) -> float:
 def throttle_pct(m: ThrottleMap, accel_mps2: float, speed_mps: float) -> float:
     """Throttle feedforward: bilinear in (speed, acceleration), clamped to 0..100 %."""
     i, wv = _cell(m.speed_mps, speed_mps)
+    return _throttle_pct_in_row(m, i, wv, accel_mps2)
+
+
+def _throttle_pct_in_row(m: ThrottleMap, i: int, wv: float, accel_mps2: float) -> float:
+    """`throttle_pct` with the speed cell (row i, weight wv) already known."""
     j, wa = _cell(m.accel_mps2, accel_mps2)
     r0 = m.pct[i]
     r1 = m.pct[i + 1]
@@ -296,20 +301,6 @@ def speed_terms(cal: Calibration, speed_mps: float) -> SpeedTerms:
 # speed is asked for ten times in a row. Keyed by the (frozen) calibration's identity and the
 # speed's value, it returns what the computation would; it never changes a result.
 _last_terms: SpeedTerms | None = None
-
-
-def _throttle_pct_at(m: ThrottleMap, terms: SpeedTerms, accel_mps2: float) -> float:
-    """`throttle_pct(m, accel_mps2, terms.speed_mps)`, with the speed cell already known."""
-    i, wv = terms.row, terms.row_w
-    j, wa = _cell(m.accel_mps2, accel_mps2)
-    r0 = m.pct[i]
-    r1 = m.pct[i + 1]
-    p0 = r0[j] + (r0[j + 1] - r0[j]) * wa
-    p1 = r1[j] + (r1[j + 1] - r1[j]) * wa
-    p = p0 + (p1 - p0) * wv
-    if p <= 0.0:
-        return 0.0
-    return p if p < THROTTLE_PCT_MAX else THROTTLE_PCT_MAX
 
 
 def controller_step(
@@ -433,7 +424,11 @@ def controller_cycle(
     if holding:
         thr, brk, out_pedal = 0.0, cal.hold_brake_bar, _HOLD
     elif new_pedal == _THROTTLE:
-        thr, brk, out_pedal = _throttle_pct_at(cal.throttle_map, terms, a_cmd), 0.0, new_pedal
+        thr, brk, out_pedal = (
+            _throttle_pct_in_row(cal.throttle_map, terms.row, terms.row_w, a_cmd),
+            0.0,
+            new_pedal,
+        )
     else:
         thr, brk, out_pedal = 0.0, brake_bar(cal.brake_map, a_coast - a_cmd), new_pedal
 

@@ -6,13 +6,11 @@ first 60 s, with our own receiver's bridge moved inside them; behaviour is judge
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from hil_process_run import run_in_hil
 
 from bywire.hil.scenario import builtin_scenarios
 
@@ -28,24 +26,9 @@ def test_gcdc_heat_in_three_processes(tmp_path: Path) -> None:
     doc["checks"] = [
         c for c in doc["checks"] if c["metric"] not in ("string_stability", "speed_limit_excess_mps")
     ]
-    scenario = tmp_path / "gcdc_heat_hil.yaml"
-    scenario.write_text(yaml.safe_dump(doc, sort_keys=False))
-    report = tmp_path / "report"
-    out = report / "result.json"
-    proc = subprocess.run(
-        [sys.executable, "-m", "bywire", "hil", "run", str(scenario), "--mode", "hil", "--json", str(out),
-         "--report", str(report), "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=400,
-    )  # fmt: skip
-    result = json.loads(out.read_text()) if out.exists() else {}
-    assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(result.get("checks"), indent=1)
+    result, report = run_in_hil(doc, tmp_path)
     m = result["metrics"]
     assert m["collisions"] == 0 and m["limit_violations"] == 0 and m["final_state"] == "ENGAGED"
-    assert all(code == 0 for name, code in m["exit_codes"].items() if not name.startswith("bus")), m[
-        "exit_codes"
-    ]
     # Every link carried its traffic: V2V both ways (UDP broadcast), the GPS line (pty), and the flood.
     assert m["v2v_accepted"] > 1000 and m["cam_sent"] > 400 and m["fuzz_sent"] >= 2900
     assert m["v2v_rejected"].get("own_station", 0) > 400  # our own CAMs come back on the broadcast

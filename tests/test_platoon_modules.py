@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from module_harness import Harness
 
 from bywire.hil.world.links import BytePipe, FdWriter, SerialReader
 from bywire.hil.world.map_cli import track_from_nmea
@@ -39,8 +40,6 @@ from bywire.host.modules.gcdc_messages import (
     RoadsideItem,
 )
 from bywire.host.modules.messages import CONTROL, MISSION, ODOMETRY, MissionCommand, Odometry
-from bywire.host.runtime.module import ModuleContext, ModuleSpec
-from bywire.host.runtime.store import ObjectStore
 from bywire.host.world.geo import LocalFrame
 from bywire.host.world.lanemap import LaneMap
 from bywire.host.world.nmea_emulator import EmulatorConfig, ReceiverEmulator, TruthState
@@ -49,27 +48,6 @@ from bywire.protocol.v2x.transport import MemV2xTransport, V2xUrlError, open_v2x
 
 EPOCH = 1305374400.0
 FRAME_ORIGIN = (51.4708, 5.6230)
-
-
-class Harness:
-    """One module on a private store: publish its inputs, step it at a time, read its outputs."""
-
-    def __init__(self, kind: str, module: Any) -> None:
-        k = KINDS[kind]
-        self.spec = ModuleSpec(kind, k.inputs, k.outputs, period_s=k.period_s, deadline_s=k.deadline_s)
-        self.store = ObjectStore()
-        self.module = module
-        self.ctx = ModuleContext(self.spec, self.store, {}, 1)
-
-    def publish(self, topic: str, obj: object) -> None:
-        self.store.publish(topic, obj)
-
-    def step(self, now_s: float) -> None:
-        self.ctx.release(now_s)
-        self.module.step(self.ctx)
-
-    def latest(self, topic: str) -> Any:
-        return self.store.latest(topic)
 
 
 # ------------------------------------------------------------------------------------------- mem:// link

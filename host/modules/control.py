@@ -83,10 +83,7 @@ class LongitudinalModule(Module):
             if blind:
                 accel = min(accel, 0.0)
         if mission is not None:
-            flags |= RequestFlags.ENGAGE if mission.engage else RequestFlags.NONE
-            flags |= RequestFlags.STEER if mission.steer else RequestFlags.NONE
-            flags |= RequestFlags.REARM if mission.rearm else RequestFlags.NONE
-            flags |= RequestFlags.STOP if mission.stop else RequestFlags.NONE
+            flags |= mission.request_flags()
         ctx.publish(
             CONTROL,
             ControlRequest(

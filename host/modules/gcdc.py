@@ -656,10 +656,7 @@ class PlatoonControl(Module):
             accel = min(max(accel, p.accel_min_mps2), p.accel_max_mps2)
         flags = RequestFlags.NONE
         if mission is not None:
-            flags |= RequestFlags.ENGAGE if mission.engage else RequestFlags.NONE
-            flags |= RequestFlags.STEER if mission.steer else RequestFlags.NONE
-            flags |= RequestFlags.REARM if mission.rearm else RequestFlags.NONE
-            flags |= RequestFlags.STOP if mission.stop else RequestFlags.NONE
+            flags |= mission.request_flags()
         ctx.publish(
             CONTROL,
             ControlRequest(

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from bywire.host.runtime.mcap_log import register_type
 from bywire.host.runtime.store import linear_interpolation
+from bywire.protocol.ecu_types import RequestFlags
 
 MISSION = "/mission/command"
 ECU_STATUS = "/ecu/status"
@@ -40,6 +41,20 @@ class MissionCommand:
     stop: bool  # ask the ECU for a controlled stop
     heartbeat_mute: bool  # fault injection: keep requesting but stop the CANopen heartbeat
     stop_line_m: float  # along the path from the start (nan: no stop line)
+
+    def request_flags(self, steer: bool | None = None) -> RequestFlags:
+        """The ECU request flags this command asks for; `steer` overrides the mission's own STEER
+        (a controller that steers by itself)."""
+        flags = RequestFlags.NONE
+        if self.engage:
+            flags |= RequestFlags.ENGAGE
+        if self.steer if steer is None else steer:
+            flags |= RequestFlags.STEER
+        if self.rearm:
+            flags |= RequestFlags.REARM
+        if self.stop:
+            flags |= RequestFlags.STOP
+        return flags
 
 
 @register_type
