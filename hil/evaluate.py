@@ -221,7 +221,17 @@ def evaluate(
         metrics.update(supervisor_metrics(scenario, runtime))
     world = extra.pop("world", None)
     gcdc = extra.pop("gcdc", None)
+    urban = extra.pop("urban", None)
+    urban_host = extra.pop("urban_host", None)
     metrics.update(extra)
+    urban_details: dict[str, Any] = {}
+    if scenario.urban is not None:
+        from bywire.hil.urban_eval import evaluate_urban
+
+        urban_metrics, urban_details = evaluate_urban(
+            scenario, plant, urban or {}, urban_host or {}, float((urban_host or {}).get("t0_s", 0.0))
+        )
+        metrics.update(urban_metrics)
     if scenario.world is not None and plant["t_s"].size:
         from bywire.hil.platoon_eval import evaluate_platoon
 
@@ -238,6 +248,7 @@ def evaluate(
         "checks": checks,
         "metrics": metrics,
     }
+    document.update(urban_details)
     if runtime is not None:
         document["host_runtime"] = runtime
     return document

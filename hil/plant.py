@@ -12,6 +12,10 @@ and the V2V radio, stepped at the plant's events. A scenario's `world:` section 
 `host.lead` becomes a scripted car on a one-lane road (`hil.world.sim.lead_world`), with the spine's radar.
 `PlantLinks` carries where the world's V2V datagrams and GPS bytes go (SIL: in-process; HIL: loopback UDP
 broadcast and a pty) and the traffic trace.
+
+Issue 5: a scenario's `urban:` section adds `hil.world.urban.UrbanWorldSim` (an RNDF/MDF network with
+rule-following traffic), stepped at the same events (~100 Hz); its object list and our pose go to the host
+through `PlantLinks.objects_send` (`protocol.objects`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import can
 from bywire.hil.scenario import FaultEvent, Scenario, ramp_value
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
 from bywire.hil.world.sim import WorldSim, lead_world
+from bywire.hil.world.urban import UrbanWorldSim
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
@@ -64,6 +69,7 @@ class PlantLinks:
     traffic_trace: TraceWriter | None = None
     unix_time: Callable[[float], float] | None = None  # scenario time -> UNIX s (V2V generation stamps)
     replay_profile: Sequence[tuple[float, float]] = field(default_factory=tuple)
+    objects_send: Callable[[bytes], Any] | None = None  # issue 5: the urban world's object-list datagrams
 
 
 @dataclass
@@ -105,6 +111,9 @@ class Plant:
         self.outputs = vehicle.outputs()
         self.links = links or PlantLinks()
         self.world = self._make_world(scenario, self.links)
+        self.urban: UrbanWorldSim | None = None
+        if scenario.urban is not None:
+            self.urban = UrbanWorldSim(scenario.urban, scenario.seed, self.links.objects_send)
         self._world_t_s = -1.0
         self._applied = _Actuation()
         self.collisions = 0
@@ -283,10 +292,14 @@ class Plant:
         """The world at scenario time t, around the FMU's state at t (the traffic's own lag integrates
         over the interval; the gaps are booked at t, every event)."""
         world = self.world
-        if world is None or t < self._world_t_s + WORLD_MIN_STEP_S:
+        if (world is None and self.urban is None) or t < self._world_t_s + WORLD_MIN_STEP_S:
             return
         self._world_t_s = t
         out = self.outputs
+        if self.urban is not None:
+            self.urban.step(t, out.x_m, out.y_m, out.heading_rad, out.speed_mps, out.yaw_rate_radps)
+        if world is None:
+            return
         world.step(t, out.x_m, out.y_m, out.heading_rad, out.speed_mps, out.accel_mps2, out.yaw_rate_radps)
         gap = self.lead_gap_m(t)
         if gap is not None:

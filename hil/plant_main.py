@@ -3,7 +3,9 @@
 With a world (issue 4): `--v2x URL` broadcasts the simulated vehicles' and road side's datagrams,
 `--gps-fd N` writes the GPS receiver's NMEA to an inherited pty master, `--traffic-trace` and
 `--world-summary` keep the per-vehicle trace and the bookkeeping, `--leader-profile CSV` replays a real
-leader (see `hil.world.replay`). V2V generation times are the wall clock's (UNIX) at scenario time t.
+leader (see `hil.world.replay`). With an urban world (issue 5): `--objects URL` sends our pose and the
+object list (protocol/objects.py), `--urban-summary` keeps the world's bookkeeping. V2V generation times
+are the wall clock's (UNIX) at scenario time t.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--world-summary", type=Path, help="write the world's bookkeeping (gaps, TTC, collisions) as JSON"
     )
     p.add_argument("--leader-profile", type=Path, help="OpenACC or CARMA CSV: the replay vehicle's speed")
+    p.add_argument("--objects", help="object link of an urban world (issue 5), e.g. udp://127.0.0.1:47200")
+    p.add_argument("--urban-summary", type=Path, help="write the urban world's bookkeeping as JSON")
     p.add_argument(
         "--rt-priority",
         type=int,
@@ -73,6 +77,7 @@ def main(args: argparse.Namespace) -> int:
         TraceWriter(args.traffic_trace, TRAFFIC_COLUMNS, flush_every=200) if args.traffic_trace else None
     )
     v2x: Any = None
+    objects: Any = None
     gps: FdWriter | None = None
     profile: tuple[tuple[float, float], ...] = ()
     if args.leader_profile is not None:
@@ -87,6 +92,10 @@ def main(args: argparse.Namespace) -> int:
             v2x = open_v2x(args.v2x, receive=False)
         if args.gps_fd is not None:
             gps = FdWriter(args.gps_fd)
+        if args.objects:
+            from bywire.protocol.objects import open_object_link
+
+            objects = open_object_link(args.objects, receiver=False)
         t0 = wait_for_t0(args.t0)
         t0_unix = t0 + (time.time() - time.monotonic())
         links = PlantLinks(
@@ -95,6 +104,7 @@ def main(args: argparse.Namespace) -> int:
             traffic_trace=traffic,
             unix_time=lambda t: t0_unix + t,
             replay_profile=profile,
+            objects_send=objects.send if objects is not None else None,
         )
         plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace, links=links)
         stats = CycleStats()
@@ -114,6 +124,10 @@ def main(args: argparse.Namespace) -> int:
             traffic.close()
         if plant is not None and plant.world is not None and args.world_summary is not None:
             args.world_summary.write_text(json.dumps(plant.world.summary(), indent=1), encoding="utf-8")
+        if plant is not None and plant.urban is not None and args.urban_summary is not None:
+            args.urban_summary.write_text(json.dumps(plant.urban.summary(), default=str), encoding="utf-8")
+        if objects is not None:
+            objects.close()
         if v2x is not None:
             v2x.close()
         if gps is not None:

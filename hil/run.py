@@ -35,6 +35,11 @@ def run_scenario(
     from bywire.host.config import load_host_config
 
     check_module_faults(scenario, load_host_config(scenario.host_config))  # before any process starts
+    if scenario.urban is not None:
+        from bywire.hil.scenario import ScenarioError
+        from bywire.hil.world.urban_spec import require_files
+
+        require_files(scenario.urban, scenario.source, ScenarioError)
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if report_dir is not None:
         run_dir = report_dir
@@ -75,6 +80,10 @@ def run_scenario(
                 from bywire.hil.platoon_report import plot_platoon
 
                 plot_platoon(report_dir, scenario, result.traffic, result.host, document)
+            if scenario.urban is not None:
+                from bywire.hil.urban_report import plot_urban
+
+                plot_urban(report_dir, scenario, result.extra.get("urban"), document)
             write_json(report_dir / f"{scenario.name}.json", document)
             document["report_dir"] = str(report_dir)
         if json_path is not None:

@@ -12,6 +12,10 @@ line as a pseudo-terminal pair the runner creates and holds for the run: the pla
 (`--gps-fd`), the host opens the slave like a real port (`--gps-serial`). The plant writes the world's
 per-vehicle trace (`traffic.csv`) and its bookkeeping (`world.json`); the host adds its V2V counters to
 its summary (`gcdc`).
+
+An urban scenario (issue 5) gets its object link as loopback UDP (`udp://127.0.0.1:PORT`, a free port per
+run): the plant sends our pose and the object list, the host's `urban_io` reads them; the plant writes its
+bookkeeping to `urban.json`, the host its state history into its summary (`urban`).
 """
 
 from __future__ import annotations
@@ -158,6 +162,10 @@ def run_hil(
             host_world_args += ["--gps-serial", pty.slave_path]
         if leader_profile is not None:
             plant_world_args += ["--leader-profile", str(leader_profile)]
+    if scenario.urban is not None:
+        objects_url = f"udp://127.0.0.1:{free_udp_port()}"
+        plant_world_args += ["--objects", objects_url, "--urban-summary", str(run_dir / "urban.json")]
+        host_world_args += ["--objects", objects_url]
     vehicle_port = free_port()
     vehicle_url = f"remote:ws://127.0.0.1:{vehicle_port}/"
     children.append(
@@ -341,7 +349,13 @@ def run_hil(
         gcdc = runtime.pop("gcdc", None)
         if gcdc is not None:
             result_extra["gcdc"] = gcdc
+        urban_host = runtime.pop("urban", None)
+        if urban_host is not None:
+            result_extra["urban_host"] = urban_host
         result_extra["host_runtime"] = runtime
+    urban_path = run_dir / "urban.json"
+    if urban_path.exists():
+        result_extra["urban"] = json.loads(urban_path.read_text(encoding="utf-8"))
     world_path = run_dir / "world.json"
     if world_path.exists():
         result_extra["world"] = json.loads(world_path.read_text(encoding="utf-8"))

@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from bywire.hil.world.spec import WorldSpec, parse_world
+from bywire.hil.world.urban_spec import UrbanSpec, parse_urban
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.schema import Reader, SchemaError
 
@@ -153,6 +154,7 @@ class Scenario:
     hil_timeout_s: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
     world: WorldSpec | None = None  # issue 4: roads, traffic, radar, GPS, V2V (hil.world.spec)
+    urban: UrbanSpec | None = None  # issue 5: RNDF/MDF network, traffic, object list (hil.world.urban_spec)
 
     def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
         return tuple(f for f in self.faults if f.kind in kinds)
@@ -317,6 +319,15 @@ def parse_scenario(data: Any, source: str) -> Scenario:
             raise ScenarioError(
                 source, "host.lead", "give the lead car as a world vehicle when there is a world"
             )
+    urban = None
+    if r.has("urban"):
+        urban = parse_urban(r.raw("urban"), source, "urban", ScenarioError)
+        if world is not None or lead is not None:
+            raise ScenarioError(
+                source,
+                "urban",
+                "an urban scenario has its traffic in urban.vehicles (no world, no host.lead)",
+            )
     r.finish()
     if fault_ref is None and faults:
         fault_ref = min(f.at_s for f in faults)
@@ -352,6 +363,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         hil_timeout_s=hil_timeout_s,
         extra=dict(extra),
         world=world,
+        urban=urban,
     )
 
 

@@ -9,6 +9,9 @@ A scenario with a world (issue 4) also gets the links the world speaks to the ho
 deterministic: the V2X radio as an in-process broadcast domain (`mem://sil-v2x-TAG`, receptions stamped
 with the scenario's epoch + simulated time), the GPS receiver's serial line as a `BytePipe`, and a
 second host reader of vehicle CAN for the odometry frames (wheel speeds, yaw rate).
+
+An urban scenario (issue 5) gets the object link in process (`protocol.objects.MemObjectLink`): the plant's
+urban world sends our pose and the object list, the host's `urban_io` reads them, in order.
 """
 
 from __future__ import annotations
@@ -105,6 +108,12 @@ def run_sil(
         links.v2x_send = v2x_plant.send
         links.gps_write = gps_pipe.write
         links.unix_time = lambda t: epoch + t
+    objects_link: Any = None
+    if scenario.urban is not None:
+        from bywire.protocol.objects import MemObjectLink
+
+        objects_link = MemObjectLink(f"sil-objects-{tag}")
+        links.objects_send = objects_link.send
     try:
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace, links=links)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
@@ -120,6 +129,7 @@ def run_sil(
             gps=gps_pipe,
             vehicle_bus=bus(vehicle_ch, can_filters=ODOMETRY_FILTER) if world is not None else None,
             unix_time=(lambda now: world.v2v.epoch_unix_s + now) if world is not None else None,
+            objects=objects_link,
         )
         if recorder is not None and recorder.mcap is not None:
             host.store.add_tap(recorder.mcap.record)  # topics and frames in one file, one clock
@@ -147,12 +157,17 @@ def run_sil(
             extra["world"] = plant.world.summary()
         if world is not None:
             extra["gcdc"] = host.gcdc_summary()
+        if plant.urban is not None:
+            extra["urban"] = plant.urban.summary()
+            extra["urban_host"] = host.urban_summary()
     finally:
         if host is not None:
             host.close()
         plant_trace.close()
         host_trace.close()
         traffic_trace.close()
+        if objects_link is not None:
+            objects_link.close()
         for t in (v2x_host, v2x_plant):
             if t is not None:
                 t.close()

@@ -3,7 +3,8 @@
 The agent builds the runtime from a host configuration (`host.config`): the scenario's mission,
 the ECU link (status in, requests and heartbeat out), odometry, radar and lead tracker, and the
 longitudinal override controller of seed 000 section 11.2 (or, in the `gcdc` configuration of issue 4,
-GPS, pose, V2V, world model and platoon control over the V2X link and the GPS line it is given), each
+GPS, pose, V2V, world model and platoon control over the V2X link and the GPS line it is given; in the
+`urban` configuration of issue 5, the behaviour and lateral/longitudinal control on the object link), each
 with its rate, deadline and failure policy. In SIL the driver calls `step(now_s)` every simulated
 millisecond and the runtime runs in lockstep; as a process (`bywire host run`) the runtime ticks on
 the wall clock.
@@ -51,6 +52,7 @@ class HostAgent:
         gps: Any = None,
         vehicle_bus: can.BusABC | None = None,
         unix_time: Callable[[float], float] | None = None,
+        objects: Any = None,
     ) -> None:
         self.scenario = scenario
         self.t0_s = t0_s
@@ -68,6 +70,7 @@ class HostAgent:
             gps=gps,
             vehicle_bus=vehicle_bus,
             unix_time=unix_time,
+            objects=objects,
         )
         self.resources.prepare_world(self.config.modules)
         # In HIL the runner freezes or kills the real process; in SIL the agent stops itself.
@@ -169,6 +172,15 @@ class HostAgent:
         if pose is not None:
             out["nmea_dropped"] = pose.nmea_dropped
             out["frozen_fixes"] = pose.frozen_fixes
+        return out
+
+    def urban_summary(self) -> dict[str, Any]:
+        """The urban modules' log (issue 5): the behaviour's state history, faults, the checkpoints it
+        counted, backward legs held. Empty without them."""
+        if not self.config.uses("urban_io", "urban_behaviour", "urban_control"):
+            return {}
+        out: dict[str, Any] = self.resources.urban_log().summary()
+        out["t0_s"] = self.t0_s  # the state history's times are on the runtime clock
         return out
 
     def close(self) -> None:

@@ -48,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gps-serial", help="GPS/INS serial port (path or pyserial URL); default: the configuration's"
     )
+    p.add_argument(
+        "--objects", help="object link (issue 5: pose + object list), udp://127.0.0.1:PORT or mem://NAME"
+    )
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
     p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
     p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
@@ -87,6 +90,11 @@ def main(args: argparse.Namespace) -> int:
     v2x: Any = None
     gps: Any = None
     vehicle_bus = None
+    objects: Any = None
+    if args.objects:
+        from bywire.protocol.objects import open_object_link
+
+        objects = open_object_link(args.objects, receiver=True)
     if v2x_url:
         from bywire.protocol.v2x.transport import open_v2x
 
@@ -127,6 +135,7 @@ def main(args: argparse.Namespace) -> int:
             gps=gps,
             vehicle_bus=vehicle_bus,  # type: ignore[arg-type]
             unix_time=lambda now: now + unix_offset,
+            objects=objects,
         )
         if not agent.prestart():
             print("host: a worker process did not start; the supervisor will keep trying", flush=True)
@@ -159,6 +168,9 @@ def main(args: argparse.Namespace) -> int:
                 gcdc = agent.gcdc_summary()
                 if gcdc:
                     summary["gcdc"] = gcdc
+                urban = agent.urban_summary()
+                if urban:
+                    summary["urban"] = urban
                 args.summary.write_text(json.dumps(summary, indent=1, default=str), encoding="utf-8")
         if recorder is not None:
             recorder.close()
@@ -172,4 +184,6 @@ def main(args: argparse.Namespace) -> int:
             v2x.close()
         if gps is not None:
             gps.close()
+        if objects is not None:
+            objects.close()
     return 0

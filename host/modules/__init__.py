@@ -7,6 +7,10 @@ sensor bus, the trace). Kinds that need no resources can run in a worker process
 Issue 4 adds the cooperative-driving kinds of `host.modules.gcdc` (GPS, pose, V2V receive and send,
 vehicle sensors, world model, platoon control) and their resources (the V2X link, the GPS serial line,
 the vehicle bus for odometry, the wall-clock mapping of V2V time stamps).
+
+Issue 5 adds the urban kinds of `host.modules.urban` (`urban_io`, `urban_behaviour`, `urban_control`) and
+their resources: the object link (`protocol.objects`), the road network built once from the scenario's
+RNDF/MDF, and the log of the behaviour's states for the run's summary.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from bywire.hil.scenario import Scenario
 from bywire.hil.trace import TraceWriter
 from bywire.host.modules import gcdc_messages as g
 from bywire.host.modules import messages as m
+from bywire.host.modules import urban_messages as u
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
 from bywire.protocol.canopen_node import HostMaster
@@ -42,12 +47,39 @@ class HostResources:
     gps: Any = None
     vehicle_bus: can.BusABC | None = None
     unix_time: Callable[[float], float] | None = None
+    # Issue 5 (urban): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
+    objects: Any = None
 
     # Built once per host (a pyproj frame takes ~0.1 s, a lane map ~1 s): a module's start must not
     # spend its hang bound on them, nor a restart. `prepare_world` builds them before the runtime starts;
     # otherwise (replay) on first use. Shared read-only by the modules.
     _frame: Any = None
     _lanemaps: dict[str | None, Any] | None = None
+    _urban_network: Any = None
+    _urban_log: Any = None
+
+    def urban_network(self) -> Any:
+        """(graph, mission, lane index) of the scenario's `urban:` RNDF/MDF, built once (ValueError
+        without one)."""
+        if self._urban_network is None:
+            urban = self.scenario.urban
+            if urban is None:
+                raise ValueError(
+                    f"{self.scenario.source}: the urban modules need a scenario with an urban: section"
+                )
+            from bywire.hil.world.urban import load_network
+            from bywire.host.roadnet.lane_index import LaneIndex
+
+            graph, mission = load_network(urban.rndf, urban.mdf)
+            self._urban_network = (graph, mission, LaneIndex(graph))
+        return self._urban_network
+
+    def urban_log(self) -> Any:
+        if self._urban_log is None:
+            from bywire.host.modules.urban import UrbanLog
+
+            self._urban_log = UrbanLog()
+        return self._urban_log
 
     def local_frame(self) -> Any:
         if self._frame is None:
@@ -72,6 +104,8 @@ class HostResources:
                 self.local_frame()
             if mod.kind == "world_model":
                 self.lane_map(mod.params.get("map_file"))
+            if mod.kind == "urban_behaviour":
+                self.urban_network()
             if mod.kind in ("v2v_rx", "v2v_tx"):
                 from bywire.protocol.v2x.codec import compiled_spec
 
@@ -122,9 +156,14 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
     max_age_ms = p.pop("request_max_age_ms", REQUEST_MAX_AGE_S * 1e3)
     if p:
         raise ValueError(f"ecu_tx: unknown params {sorted(p)} (known: request_max_age_ms)")
-    number = isinstance(max_age_ms, int | float) and not isinstance(max_age_ms, bool)
-    if not number or not 20 <= max_age_ms <= 1000:
-        raise ValueError(f"ecu_tx: params.request_max_age_ms must be in 20..1000 ms, got {max_age_ms!r}")
+    if (
+        isinstance(max_age_ms, bool)
+        or not isinstance(max_age_ms, int | float)
+        or not 20 <= max_age_ms <= 1000
+    ):
+        raise ValueError(
+            f"ecu_tx: params.request_max_age_ms must be a number in 20..1000 ms, got {max_age_ms!r}"
+        )
     return EcuTx(res.link, res.trace, res.t0_s, request_max_age_s=max_age_ms / 1e3)
 
 
@@ -220,6 +259,28 @@ def _platoon(params: Mapping[str, Any], res: HostResources | None) -> Module:
     return PlatoonControl(params)
 
 
+def _urban_io(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.urban import UrbanIo
+
+    return UrbanIo(res.objects if res is not None else None, res.urban_log() if res is not None else None)
+
+
+def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.behaviour.behaviour import Behaviour
+    from bywire.host.modules.urban import UrbanBehaviour
+    from bywire.host.roadnet.route import MissionPlanner
+
+    assert res is not None
+    graph, mission, lane_index = res.urban_network()
+    return UrbanBehaviour(Behaviour(MissionPlanner(graph, mission), lane_index=lane_index), res.urban_log())
+
+
+def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.urban import UrbanControl
+
+    return UrbanControl(params, res.urban_log() if res is not None else None)
+
+
 KINDS: dict[str, ModuleKind] = {
     k.kind: k
     for k in (
@@ -301,6 +362,36 @@ KINDS: dict[str, ModuleKind] = {
             _platoon,
             False,
             "seed 003 V-C/V-D platoon strategy",
+        ),
+        # Issue 5: urban driving (host.modules.urban)
+        ModuleKind(
+            "urban_io",
+            (),
+            (u.URBAN_POSE, u.URBAN_OBJECTS),
+            0.01,
+            0.005,
+            _urban_io,
+            doc="pose and object list off the object link",
+        ),
+        ModuleKind(
+            "urban_behaviour",
+            (u.URBAN_POSE, u.URBAN_OBJECTS, m.ECU_STATUS),
+            (u.URBAN_PLAN,),
+            0.05,
+            0.045,
+            _urban_behaviour,
+            False,
+            "seed 000 Sec. 8-9 behaviour (HSM) on the RNDF/MDF",
+        ),
+        ModuleKind(
+            "urban_control",
+            (u.URBAN_PLAN, u.URBAN_POSE, m.MISSION, SAFETY_LIMIT),
+            (m.CONTROL,),
+            0.02,
+            0.010,
+            _urban_control,
+            False,
+            "seed 000 Sec. 11 lateral + longitudinal control",
         ),
     )
 }
