@@ -16,10 +16,14 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	$(BIN)/bywire hil demo --report reports/demo --record reports/demo/run.mcap
 
+# The suite in two parts: everything that runs in one process, on both cores (files kept whole on a
+# worker: module-scoped fixtures run once); then the multi-process HIL runs one at a time, alone on
+# the machine, as their real-time processes need. `-m slow` (long campaigns) runs neither.
 test: setup
 	$(BIN)/ruff check .
 	$(MAKE) --no-print-directory typecheck
-	$(BIN)/pytest
+	$(BIN)/pytest -m "not slow and not hil" -n 2 --dist loadfile
+	$(BIN)/pytest -m "hil and not slow"
 
 # mypy cannot follow setuptools' package-dir mapping (folders protocol/, ecu/, ... are bywire.*),
 # so it checks a tree of symlinks laid out the way Python imports the package.

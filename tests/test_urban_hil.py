@@ -45,6 +45,7 @@ def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
     assert east["departure_s"] < ours["departure_s"]
 
 
+@pytest.mark.slow  # 90 s of driving; the default run's urban HIL test is the four-way stop
 def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> None:
     if not (shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt").is_file():
         pytest.skip(f"DARPA sample RNDF not found at {shared_data_dir() / 'rndf' / 'darpa_sample'}")
@@ -60,6 +61,7 @@ def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> N
     assert m["collisions"] == 0 and m["stop_line_stops"] >= 1
 
 
+@pytest.mark.slow  # the default run has the spine's SIGSTOP test in HIL and this scenario in SIL
 def test_host_frozen_mid_turn_the_ecu_stops_the_car(tmp_path: Path) -> None:
     """SIGSTOP of the host process while it turns left inside the intersection: the ECU's watchdog brings
     the car to a standstill (SAFE_STOP) and holds it."""
