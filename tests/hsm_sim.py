@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from bywire.hil.world.urban import boxes_overlap  # the plant world's own collision test
 from bywire.host.behaviour.behaviour import Behaviour
 from bywire.host.behaviour.context import BehaviourParams
 from bywire.host.behaviour.situation import (
@@ -356,18 +357,6 @@ def _box(x: float, y: float, h: float, length: float, width: float, centre_ahead
             for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))
         ]
     )
-
-
-def boxes_overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Separating-axis test of two rectangles given as 4 corners each."""
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pa, pb = a @ axis, b @ axis
-            if pa.max() < pb.min() or pb.max() < pa.min():
-                return False
-    return True
 
 
 @dataclass
