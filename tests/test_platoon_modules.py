@@ -21,6 +21,7 @@ from module_harness import Harness
 from bywire.hil.world.links import BytePipe, FdWriter, SerialReader
 from bywire.hil.world.map_cli import track_from_nmea
 from bywire.host.config import HostConfigError, load_host_config, parse_host_config
+from bywire.host.geo import LocalFrame
 from bywire.host.modules import KINDS
 from bywire.host.modules.fanout_bus import FanoutBus
 from bywire.host.modules.gcdc import PlatoonControl, PoseModule, V2vRxIo, V2vTxIo
@@ -40,7 +41,6 @@ from bywire.host.modules.gcdc_messages import (
     RoadsideItem,
 )
 from bywire.host.modules.messages import CONTROL, MISSION, ODOMETRY, MissionCommand, Odometry
-from bywire.host.world.geo import LocalFrame
 from bywire.host.world.lanemap import LaneMap
 from bywire.host.world.nmea_emulator import EmulatorConfig, ReceiverEmulator, TruthState
 from bywire.host.world.serial_link import PtyLink

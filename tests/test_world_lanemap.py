@@ -16,7 +16,7 @@ from fuzz_util import mutate
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.host.world.geo import LocalFrame
+from bywire.host.geo import LocalFrame
 from bywire.host.world.lanemap import (
     LaneMap,
     LaneMapError,

@@ -13,7 +13,7 @@ import pynmea2
 import pytest
 import serial
 
-from bywire.host.world.geo import LocalFrame, wrap_angle
+from bywire.host.geo import LocalFrame, wrap_angle
 from bywire.host.world.nmea import FixQuality, NmeaStream
 from bywire.host.world.nmea_emulator import EmulatorConfig, Outage, ReceiverEmulator, TruthState
 from bywire.host.world.pose import Pose, PoseFilter, PoseServer, PoseServerConfig

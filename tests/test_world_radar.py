@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from bywire.host.world.geo import LocalFrame
+from bywire.host.geo import LocalFrame
 from bywire.host.world.lanemap import LaneMap, record_lane
 from bywire.host.world.pose import Pose
 from bywire.host.world.radar_fusion import (

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.host.world.geo import LocalFrame
+from bywire.host.geo import LocalFrame
 from bywire.host.world.vehicles import (
     VehicleManager,
     VehicleManagerConfig,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bywire.host.world.geo import LocalFrame
+from bywire.host.geo import LocalFrame
 from bywire.host.world.lanemap import LaneMapError, record_lane
 from bywire.host.world.nmea import FixQuality, Gga, NmeaStream
 

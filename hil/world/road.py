@@ -2,7 +2,7 @@
 
 Here a road from a scenario's `RoadSpec`: straight, or a constant-curvature arc (gently curved,
 |radius| >= 200 m), `lanes` lanes side by side, lane 0 on the right, lane k offset k lane widths to the
-left. The road starts at the origin of the local plane (`host.world.geo.LocalFrame` at the road's geodetic
+left. The road starts at the origin of the local plane (`host.geo.LocalFrame` at the road's geodetic
 origin), so the plant's GPS emulator and the host's lane map share one frame. The same `Lane` type will
 carry the urban roads of issue 5 (any `Path`).
 """
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bywire.hil.world.spec import RoadSpec
+from bywire.host.geo import LocalFrame
 from bywire.host.roadnet.path import Path
-from bywire.host.world.geo import LocalFrame
 
 SAMPLE_M = 1.0  # lane sampling; Path interpolates linearly between samples
 

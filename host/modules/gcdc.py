@@ -57,6 +57,7 @@ import can
 import numpy as np
 
 from bywire.hil.scenario import Scenario
+from bywire.host.geo import LocalFrame, wrap_angle
 from bywire.host.modules.gcdc_messages import (
     EGO_MOTION,
     GPS_NMEA,
@@ -93,7 +94,6 @@ from bywire.host.platoon.follow_qp import KMH_TO_MPS, FollowParams, LeaderPredic
 from bywire.host.platoon.strategy import PlatoonStrategy
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import SAFETY_LIMIT, SafetyLimit
-from bywire.host.world.geo import LocalFrame, wrap_angle
 from bywire.host.world.lanemap import LaneMap, record_lane
 from bywire.host.world.pose import Pose, PoseServer, PoseServerConfig
 from bywire.host.world.radar_fusion import FusionConfig, RadarFusion, RadarMeasurement

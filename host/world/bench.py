@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 
 from bywire.bench_cli import add_timed_arguments, run_timed
+from bywire.host.geo import LocalFrame
 
-from .geo import LocalFrame
 from .lanemap import LaneMap, record_lane
 from .nmea import FixQuality
 from .pose import PoseFilter

@@ -52,9 +52,8 @@ import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import cKDTree
 
+from bywire.host.geo import LocalFrame, wrap_angle
 from bywire.host.roadnet.path import Path as LanePath
-
-from .geo import LocalFrame, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

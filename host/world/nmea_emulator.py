@@ -33,7 +33,8 @@ from typing import Literal
 
 import numpy as np
 
-from .geo import LocalFrame
+from bywire.host.geo import LocalFrame
+
 from .nmea import KNOT_MPS, FixQuality, with_checksum
 
 OutageKind = Literal["rtk_loss", "no_fix", "frozen"]

@@ -57,7 +57,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from .geo import LocalFrame, wrap_angle
+from bywire.host.geo import LocalFrame, wrap_angle
+
 from .nmea import FixQuality, Gga, Gst, Heading, NmeaRecord, NmeaStream, Rmc, Vtg
 
 FloatArray = npt.NDArray[np.float64]

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from .geo import LocalFrame, wrap_angle, wrap_angles
+from bywire.host.geo import LocalFrame, wrap_angle, wrap_angles
 
 FloatArray = npt.NDArray[np.float64]
 
