@@ -34,7 +34,7 @@ from bywire.ecu.core import ActuatorCommand, CoreState, core_step, initial_core_
 from bywire.ecu.executive import CycleStats
 from bywire.ecu.safety import EcuInputs
 from bywire.protocol.canopen_node import ABORT_DEVICE_STATE, EcuNode, RefusedWrite
-from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
+from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, Gear, RequestFlags
 from bywire.protocol.host_link import EcuStatus, next_counter
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
@@ -179,6 +179,7 @@ class EcuApp:
                 ignition=cmd.ignition,
                 steer_enable=cmd.steer_enable,
                 ecu_state=cmd.state,
+                gear_request=cmd.gear_request,
             )
             bus.send(self.tx.encode(frame, timestamp_s=now_s))
         if now_s >= self._next_status_s:
@@ -245,6 +246,8 @@ class EcuApp:
             accel_meas_mps2=motion.long_accel_mps2 if isinstance(motion, Motion) else 0.0,
             steer_angle_meas_rad=steer_angle,
             unlatch=self._unlatch_pending,
+            gear_engaged=motion.gear_engaged if isinstance(motion, Motion) else Gear.DRIVE,
+            wheel_speed_max_mps=wheels.max_mps if isinstance(wheels, WheelSpeeds) else math.inf,
         )
 
     def _status(self, inputs: EcuInputs, cmd: Any) -> EcuStatus:
@@ -261,6 +264,7 @@ class EcuApp:
             compute_max_us=stats.max_compute_us_window(),
             overruns=stats.overruns,
             counter=self._status_counter,
+            gear=inputs.gear_engaged,
         )
 
     def rx_stats(self) -> dict[str, Any]:

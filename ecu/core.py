@@ -32,6 +32,18 @@ d, and a margin for the integrator to correct the maps. So every stop holds with
 the car does; if it is still rolling then (a brake weaker than calibrated, a slope steeper than
 the integrator covers) the hold pressure takes over.
 
+Gears (`ecu.gear`, issue 5: backing out of a parking spot). ENGAGED drives only while the gear the
+host wants (RequestFlags.REVERSE), the gear the ECU asks the gateway for (`DBW_Command.GearRequest`)
+and the gear the gateway reports engaged (`GW_Motion.GearEngaged`) agree. Otherwise it shifts: it
+brakes at SHIFT_DECEL_MPS2 without throttle to standstill (every wheel below
+SHIFT_STANDSTILL_SPEED_MPS), holds, asks for the new gear once the hold pressure has settled, and
+drives on once the gateway reports that gear; a gear not confirmed within GEAR_CONFIRM_TIMEOUT_S is
+the stop fault GEAR_TIMEOUT. Every other state asks for the engaged gear (no shift outside
+ENGAGED). The controller always sees the speed magnitude (the wheel speeds are unsigned) and the
+acceleration along the direction of travel of the engaged gear (LongAccel is signed in the vehicle
+frame, so it flips in reverse); in reverse the request is capped to keep the speed below
+REVERSE_SPEED_MAX_MPS. The stops are the same in either direction: the brakes oppose the motion.
+
 Stops without vehicle data (timeout, corruption) run open loop on the brake feedforward, the
 speed for the maps estimated from the last trusted speed (measured at most
 BLIND_SPEED_MAX_AGE_S before, else the top of the calibrated speed range as v0) integrated with
@@ -54,6 +66,13 @@ from bywire.ecu.accel_controller import (
     step_dt_s,
 )
 from bywire.ecu.calibration import Calibration, fast_frozen_init
+from bywire.ecu.gear import (
+    GEAR_CONFIRM_TIMEOUT_S,
+    SHIFT_BRAKE_SETTLE_S,
+    SHIFT_DECEL_MPS2,
+    SHIFT_STANDSTILL_SPEED_MPS,
+    reverse_accel_limit_mps2,
+)
 from bywire.ecu.safety import (
     STOP_STATES,
     EcuInputs,
@@ -63,7 +82,7 @@ from bywire.ecu.safety import (
     safety_transition,
     vehicle_usable,
 )
-from bywire.protocol.ecu_types import EcuState, Fault, RequestFlags
+from bywire.protocol.ecu_types import EcuState, Fault, Gear, RequestFlags
 
 __all__ = [
     "BLIND_SPEED_MAX_AGE_S",
@@ -83,6 +102,9 @@ __all__ = [
 BLIND_SPEED_MAX_AGE_S = 1.0
 
 _STEER = int(RequestFlags.STEER)
+_REVERSE_FLAG = int(RequestFlags.REVERSE)
+_GEAR_TIMEOUT = int(Fault.GEAR_TIMEOUT)
+_DRIVE, _REVERSE = Gear.DRIVE, Gear.REVERSE
 _HOLD, _NONE = PedalMode.HOLD, PedalMode.NONE
 _ESTOP_PAUSE = int(Fault.ESTOP_PAUSE)
 _ENGAGED = EcuState.ENGAGED
@@ -120,7 +142,9 @@ class ActuatorCommand:
     accel_cmd_mps2: float  # what the pedal maps were asked for (target + integrator)
     integrator_mps2: float
     pedal: PedalMode
-    holding: bool  # a stop has reached standstill and holds
+    holding: bool  # a stop or a shift has reached standstill and holds
+    gear_request: Gear  # DBW_Command.GearRequest
+    shifting: bool  # ENGAGED but not driving: the wanted, requested and engaged gears differ
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,12 +161,25 @@ class InputVerdict:
     faults: Fault  # the same bits as a Fault, for the command
     usable: bool  # safety.vehicle_usable(inputs)
     steer_requested: bool  # the request's STEER flag
+    wanted_gear: Gear  # the request's REVERSE flag as a gear
+    accel_along_mps2: float  # the measured acceleration along the engaged gear's direction of travel
+    standstill: bool  # usable and every wheel below SHIFT_STANDSTILL_SPEED_MPS
 
 
 def judge_inputs(inp: EcuInputs, cal: Calibration) -> InputVerdict:
     active = active_fault_bits(inp, cal)
+    flags = int(inp.request_flags)
+    usable = vehicle_usable(inp)
     return InputVerdict(
-        inp, cal, active, _fault(active), vehicle_usable(inp), bool(int(inp.request_flags) & _STEER)
+        inp,
+        cal,
+        active,
+        _fault(active),
+        usable,
+        bool(flags & _STEER),
+        _REVERSE if flags & _REVERSE_FLAG else _DRIVE,
+        -inp.accel_meas_mps2 if inp.gear_engaged == _REVERSE else inp.accel_meas_mps2,
+        usable and inp.wheel_speed_max_mps < SHIFT_STANDSTILL_SPEED_MPS,
     )
 
 
@@ -159,6 +196,9 @@ class CoreState:
     speed_trusted_t_s: float  # when the speed was last measured (-inf: never)
     stop_decel_mps2: float  # the current stop's deceleration (the largest cause so far)
     stop_deadline_s: float  # the current stop holds at the latest then (inf: no stop)
+    gear_request: Gear  # what the last cycle asked the gateway for
+    gear_wait_s: float  # since when the requested gear differs from the engaged one (inf: it does not)
+    shift_hold_s: float  # since when a shift holds at standstill (inf: it does not)
     # The last cycle's verdict on its inputs (None at boot): reused while the inputs are the same
     # object. A cache, not state: it never changes what a cycle computes.
     verdict: InputVerdict | None = field(compare=False, repr=False)
@@ -177,6 +217,9 @@ def initial_core_state(now_s: float) -> CoreState:
         speed_trusted_t_s=-_INF,
         stop_decel_mps2=0.0,
         stop_deadline_s=_INF,
+        gear_request=Gear.DRIVE,
+        gear_wait_s=_INF,
+        shift_hold_s=_INF,
         verdict=None,
     )
 
@@ -223,6 +266,12 @@ def core_step(
     if verdict is None or verdict.inputs is not inp or verdict.cal is not cal:
         verdict = judge_inputs(inp, cal)
     active = verdict.active
+    faults = verdict.faults
+    engaged_gear = inp.gear_engaged
+    if now_s - st.gear_wait_s > GEAR_CONFIRM_TIMEOUT_S and st.safety.state == _ENGAGED:
+        # Last cycle's request is still not engaged: the selector does not answer (a stop fault).
+        active |= _GEAR_TIMEOUT
+        faults = _fault(active)
     saf = safety_transition(st.safety, inp, active, cal)
     s = saf.state
     ok = verdict.usable
@@ -230,31 +279,81 @@ def core_step(
         v_est, trusted_t = inp.speed_mps, now_s
     else:
         v_est, trusted_t = st.speed_est_mps, st.speed_trusted_t_s
+    accel_along = verdict.accel_along_mps2
 
     # The 1 kHz path: the controller by position, its output as a tuple, and the command built by
     # position (field order of ActuatorCommand, named in the comments): building these objects is
     # most of a cycle's cost, and keywords cost almost as much again.
     if s == _ENGAGED:
-        ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
-            st.controller,
-            now_s,
-            inp.request_accel_mps2,
-            inp.accel_meas_mps2,
-            inp.speed_mps,
-            True,  # closed_loop
-            True,  # throttle_allowed
-            False,  # hold
-            cal,
-        )
+        wanted = verdict.wanted_gear
+        gear_req = st.gear_request if st.safety.state == _ENGAGED else engaged_gear
+        shifting = not (wanted == gear_req == engaged_gear)
+        shift_hold_s = _INF
+        if shifting:
+            # Brake to standstill and hold (no throttle); ask for the new gear once the hold has
+            # built up; drive once the gateway reports it (module docstring, ecu.gear).
+            hold = verdict.standstill
+            if hold:
+                shift_hold_s = st.shift_hold_s if st.shift_hold_s <= now_s else now_s
+                if gear_req != wanted and now_s - shift_hold_s >= SHIFT_BRAKE_SETTLE_S:
+                    gear_req = wanted
+            ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
+                st.controller,
+                now_s,
+                -SHIFT_DECEL_MPS2,  # accel_request_mps2
+                accel_along,  # accel_meas_mps2
+                inp.speed_mps,  # speed_mps
+                True,  # closed_loop
+                False,  # throttle_allowed
+                hold,  # hold
+                cal,
+            )
+            thr = 0.0
+        else:
+            a_req = inp.request_accel_mps2
+            if engaged_gear == _REVERSE:
+                a_lim = reverse_accel_limit_mps2(inp.speed_mps)
+                if a_req > a_lim:
+                    a_req = a_lim
+            ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
+                st.controller,
+                now_s,
+                a_req,
+                accel_along,
+                inp.speed_mps,
+                True,  # closed_loop
+                True,  # throttle_allowed
+                False,  # hold
+                cal,
+            )
+        if gear_req == engaged_gear:
+            gear_wait_s = _INF
+        else:
+            gear_wait_s = st.gear_wait_s if st.gear_wait_s <= now_s else now_s
         if verdict.steer_requested:
             dt = step_dt_s(st.controller.t_s, now_s)
             steer, steer_en = steer_step(st.steer_angle_rad, inp.request_steer_angle_rad, dt, cal), True
         else:
             steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
-        new = CoreState(saf, ctl, steer, steer_en, False, False, v_est, trusted_t, 0.0, _INF, verdict)
+        new = CoreState(
+            saf,
+            ctl,
+            steer,
+            steer_en,
+            False,
+            False,
+            v_est,
+            trusted_t,
+            0.0,
+            _INF,
+            gear_req,
+            gear_wait_s,
+            shift_hold_s,
+            verdict,
+        )
         cmd = ActuatorCommand(
             s,  # state
-            verdict.faults,  # faults_active
+            faults,  # faults_active
             saf.latched,  # faults_latched
             thr,  # throttle_pct
             brk,  # brake_bar
@@ -267,7 +366,9 @@ def core_step(
             a_cmd,  # accel_cmd_mps2
             integ,  # integrator_mps2
             pedal,  # pedal
-            False,  # holding
+            shifting and pedal == _HOLD,  # holding
+            gear_req,  # gear_request
+            shifting,  # shifting
         )
         return new, cmd
 
@@ -292,7 +393,7 @@ def core_step(
             st.controller,
             now_s,
             -decel,  # accel_request_mps2
-            inp.accel_meas_mps2 if ok else 0.0,  # accel_meas_mps2
+            accel_along if ok else 0.0,  # accel_meas_mps2
             inp.speed_mps if ok else v_est,  # speed_mps
             ok,  # closed_loop
             False,  # throttle_allowed
@@ -308,10 +409,25 @@ def core_step(
             steer, steer_en = st.steer_angle_rad, True
         else:
             steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
-        new = CoreState(saf, ctl, steer, steer_en, holding, blind, v_est, trusted_t, decel, deadline, verdict)
+        new = CoreState(
+            saf,
+            ctl,
+            steer,
+            steer_en,
+            holding,
+            blind,
+            v_est,
+            trusted_t,
+            decel,
+            deadline,
+            engaged_gear,  # a stop never shifts
+            _INF,
+            _INF,
+            verdict,
+        )
         cmd = ActuatorCommand(
             s,  # state
-            verdict.faults,  # faults_active
+            faults,  # faults_active
             saf.latched,  # faults_latched
             0.0,  # throttle_pct: a stop never uses the throttle
             brk,  # brake_bar
@@ -325,16 +441,20 @@ def core_step(
             integ,  # integrator_mps2
             pedal,  # pedal
             pedal == _HOLD,  # holding
+            engaged_gear,  # gear_request
+            False,  # shifting
         )
         return new, cmd
 
-    # OFF, READY, MANUAL: hands off.
-    ctl = controller_passive(now_s, inp.accel_meas_mps2 if ok else 0.0, cal)
+    # OFF, READY, MANUAL: hands off; the gear stays as the car has it.
+    ctl = controller_passive(now_s, accel_along if ok else 0.0, cal)
     steer = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal)
-    new = CoreState(saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF, verdict)
+    new = CoreState(
+        saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF, engaged_gear, _INF, _INF, verdict
+    )
     cmd = ActuatorCommand(
         s,  # state
-        verdict.faults,  # faults_active
+        faults,  # faults_active
         saf.latched,  # faults_latched
         0.0,  # throttle_pct
         0.0,  # brake_bar
@@ -348,5 +468,7 @@ def core_step(
         0.0,  # integrator_mps2
         _NONE,  # pedal
         False,  # holding
+        engaged_gear,  # gear_request
+        False,  # shifting
     )
     return new, cmd

@@ -29,7 +29,9 @@ States (bywire.protocol.ecu_types.EcuState) and transitions, in priority order e
 
 Stop faults (`STOP_FAULTS`): host heartbeat lost, host request stale or not finite, vehicle data
 stale, corrupt or not finite, E-stop radio stale or INVALID, an overrun streak of at least
-`OVERRUN_STREAK_LIMIT` cycles, calibration invalid, the host's STOP flag.
+`OVERRUN_STREAK_LIMIT` cycles, calibration invalid, the host's STOP flag, and a gear the gateway
+never confirmed (GEAR_TIMEOUT: judged by the core from its shift state, `ecu.gear`, and added to
+this cycle's fault bits before the transition).
 
 `faults_active` are the conditions of this cycle; `latched` is the cause of the current state
 (SAFE_STOP: the stop faults at entry; DISABLED: ESTOP_DISABLE; MANUAL: DRIVER_OVERRIDE; PAUSED:
@@ -46,7 +48,7 @@ import math
 from dataclasses import dataclass
 
 from bywire.ecu.calibration import Calibration, fast_frozen_init
-from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
+from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, Gear, RequestFlags
 
 __all__ = [
     "ACTUATING_STATES",
@@ -80,6 +82,7 @@ _DRIVER_OVERRIDE = int(Fault.DRIVER_OVERRIDE)
 _ESTOP_TIMEOUT = int(Fault.ESTOP_TIMEOUT)
 _REQUEST_INVALID = int(Fault.REQUEST_INVALID)
 _HOST_STOP_REQUEST = int(Fault.HOST_STOP_REQUEST)
+_GEAR_TIMEOUT = int(Fault.GEAR_TIMEOUT)
 
 STOP_FAULTS = Fault(
     _HOST_HEARTBEAT
@@ -90,6 +93,7 @@ STOP_FAULTS = Fault(
     | _OVERRUN
     | _CALIBRATION_INVALID
     | _HOST_STOP_REQUEST
+    | _GEAR_TIMEOUT
 )
 _STOP_FAULTS = int(STOP_FAULTS)
 
@@ -137,6 +141,10 @@ class EcuInputs:
     accel_meas_mps2: float  # GW_Motion.LongAccel (dv/dt, gravity removed)
     steer_angle_meas_rad: float  # GW_Steer.SteerAngleActual (for a bumpless steering engage)
     unlatch: bool  # the manual E-stop unlatch switch (level; the rising edge counts)
+    gear_engaged: Gear = Gear.DRIVE  # GW_Motion.GearEngaged: the gear the gateway reports engaged
+    # The fastest of the four GW_WheelSpeeds (a shift needs every wheel still); inf: not known, which
+    # never counts as standstill.
+    wheel_speed_max_mps: float = math.inf
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,6 +16,13 @@ broadcast and a pty) and the traffic trace.
 Issue 5: a scenario's `urban:` section adds `hil.world.urban.UrbanWorldSim` (an RNDF/MDF network with
 rule-following traffic), stepped at the same events (~100 Hz); its object list and our pose go to the host
 through `PlantLinks.objects_send` (`protocol.objects`).
+
+The gear (issue 5, reversing out of parking spots): the gateway owns the selector. It takes
+`DBW_Command.GearRequest` only from a fresh, engaged command, and shifts only at standstill (|v| below
+`SHIFT_STANDSTILL_SPEED_MPS`) with at least `SHIFT_BRAKE_MIN_BAR` applied; the new gear is engaged
+`SHIFT_DELAY_S` later (a shift that loses either condition on the way is abandoned), and refused
+requests are counted (`shifts_refused`). `GW_Motion.GearEngaged` reports the gear engaged and the FMU's
+`gear` input (the drive force's sign) follows it. Wheel speeds go out as magnitudes, LongAccel signed.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from bywire.hil.scenario import FaultEvent, Scenario, ramp_value
 from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
 from bywire.hil.world.sim import WorldSim, lead_world
 from bywire.hil.world.urban import UrbanWorldSim
-from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.ecu_types import EcuState, EstopMode, Gear
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
     DbwCommand,
@@ -55,6 +62,11 @@ MAX_HOLD_S = 0.010  # the model is advanced at least this often, even without an
 PARK_BRAKE_EQUIV_BAR = 60.0  # the electric park brake, expressed as service-brake pressure for the model
 DRIVER_BRAKE_BAR_PER_PCT = 1.2  # 100 % pedal ~ 120 bar: a full driver stop
 GATEWAY_FRAMES = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+# The gateway's selector: a shift takes this long (an automatic gearbox's R <-> D at standstill), only
+# at standstill and with the brake applied; otherwise the request is refused.
+SHIFT_DELAY_S = 0.4
+SHIFT_STANDSTILL_SPEED_MPS = 0.05
+SHIFT_BRAKE_MIN_BAR = 5.0
 # The world (traffic, radar geometry, V2V, GPS) is stepped at events at most this often: ~100 Hz, the
 # gateway's rate; the command and delay events in between change nothing the traffic could see.
 WORLD_MIN_STEP_S = 0.0095
@@ -116,6 +128,12 @@ class Plant:
             self.urban = UrbanWorldSim(scenario.urban, scenario.seed, self.links.objects_send)
         self._world_t_s = -1.0
         self._applied = _Actuation()
+        self.gear = Gear.DRIVE  # engaged
+        self._shift_to: Gear | None = None  # a shift under way, engaged at _shift_done_s
+        self._shift_done_s = float("inf")
+        self._refused_request: Gear | None = None
+        self.shifts = 0
+        self.shifts_refused = 0
         self.collisions = 0
         self._in_collision = False
         self.min_gap_m = float("inf")
@@ -188,6 +206,7 @@ class Plant:
                     steer_angle_rad=act.steer_rad,
                     grade_pct=ramp_value(self.scenario.grade_pct, t_prev),
                     wind_mps=ramp_value(self.scenario.wind_mps, t_prev),
+                    gear=-1.0 if self.gear == Gear.REVERSE else 1.0,
                 ),
             )
             self._advance_world(t)
@@ -197,6 +216,7 @@ class Plant:
             self._cmd = self._pending.popleft()[1]
         cmd_fresh = self._cmd is not None and not self._cmd_monitor.timed_out(now_s)
         self._applied = self._actuation(t, cmd_fresh)
+        self._shift(now_s, cmd_fresh)
         if now_s >= self._next_gateway_s:
             self._next_gateway_s += GATEWAY_PERIOD_S
             if self._next_gateway_s < now_s:  # a stalled HIL process re-phases instead of bursting
@@ -221,6 +241,8 @@ class Plant:
             nxt = min(nxt, self._pending[0][0])
         if self._delayed:
             nxt = min(nxt, self._delayed[0][0])
+        if self._shift_to is not None:
+            nxt = min(nxt, self._shift_done_s)
         if cmd_fresh:
             last = self._cmd_monitor.state.last_time_s
             if last is not None:  # the instant the gateway stops trusting the command
@@ -255,6 +277,30 @@ class Plant:
         if driver_pct > 0.0:
             act.throttle_pct = 0.0  # brake override: a driver on the brake always wins over throttle
         return act
+
+    def _shift(self, now_s: float, cmd_fresh: bool) -> None:
+        """The selector: engage a shift that is due, start one that is asked for (see the docstring)."""
+        cmd = self._cmd
+        wanted = cmd.gear_request if cmd is not None and cmd_fresh and cmd.engage else self.gear
+        held = (
+            abs(self.outputs.speed_mps) < SHIFT_STANDSTILL_SPEED_MPS
+            and self._applied.brake_bar >= SHIFT_BRAKE_MIN_BAR
+        )
+        if self._shift_to is not None:
+            if self._shift_to != wanted or not held:
+                self._shift_to, self._shift_done_s = None, float("inf")  # abandoned: the gear stays
+            elif now_s >= self._shift_done_s:
+                self.gear, self._shift_to, self._shift_done_s = wanted, None, float("inf")
+                self.shifts += 1
+                return
+        if wanted != self.gear and self._shift_to is None:
+            if held:
+                self._shift_to, self._shift_done_s = wanted, now_s + SHIFT_DELAY_S
+            elif self._refused_request != wanted:
+                self.shifts_refused += 1  # once per request, not per event
+            self._refused_request = wanted if not held else None
+        elif wanted == self.gear:
+            self._refused_request = None
 
     def _receive(self, now_s: float) -> None:
         bus = self.bus
@@ -377,6 +423,7 @@ class Plant:
                 long_accel_mps2=out.accel_mps2 + self._noise(sc.accel_noise_mps2),
                 yaw_rate_radps=out.yaw_rate_radps + self._noise(0.002),
                 brake_bar_actual=out.brake_bar_actual,
+                gear_engaged=self.gear,
             ),
             now_s,
             t,

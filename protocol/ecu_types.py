@@ -1,4 +1,4 @@
-"""Enumerations shared by the ECU, the host and the plant: ECU state, fault bits, request flags.
+"""Enumerations shared by the ECU, the host and the plant: ECU state, fault bits, request flags, gear.
 
 These values travel on the wire (vehicle CAN `DBW_Command.EcuState`, the CANopen status PDO and the
 request PDO), so they are part of the protocol contract: append, never renumber.
@@ -36,6 +36,7 @@ class Fault(IntFlag):
     ESTOP_TIMEOUT = 1 << 8  # E-stop radio frame stale: treated like a fault (stop and hold)
     REQUEST_INVALID = 1 << 9  # host request PDO stale, out of range or with a bad alive counter
     HOST_STOP_REQUEST = 1 << 10  # the host itself asked for a controlled stop (supervisor)
+    GEAR_TIMEOUT = 1 << 11  # a requested gear was not reported engaged within the shift timeout
 
 
 class RequestFlags(IntFlag):
@@ -46,6 +47,18 @@ class RequestFlags(IntFlag):
     REARM = 1 << 1  # clear latched SAFE_STOP / MANUAL once the cause is gone (rising edge)
     STOP = 1 << 2  # controlled stop and hold requested by the host
     STEER = 1 << 3  # the steering request is valid
+    # Drive in reverse. The request's accel_mps2 stays along the direction of travel of the selected
+    # gear (positive: the speed magnitude grows). The ECU brakes to standstill, shifts and drives on
+    # only once the gateway reports the gear engaged.
+    REVERSE = 1 << 4
+
+
+class Gear(IntEnum):
+    """Transmission gear, as on vehicle CAN `DBW_Command.GearRequest` / `GW_Motion.GearEngaged` and
+    in the status PDO. The drive-by-wire gateway owns the selector: the ECU only asks for a gear."""
+
+    DRIVE = 0
+    REVERSE = 1
 
 
 class EstopMode(IntEnum):

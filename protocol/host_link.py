@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, fields
 from enum import IntEnum, IntFlag
 from typing import TypeVar
 
-from bywire.protocol.ecu_types import EcuState, Fault, RequestFlags
+from bywire.protocol.ecu_types import EcuState, Fault, Gear, RequestFlags
 
 # CANopen basic data type codes (CiA 301 table 44), as written in the EDS `DataType=` lines.
 INTEGER16 = 0x0003
@@ -95,6 +95,9 @@ STATUS_FIELDS: tuple[FieldSpec, ...] = (
     FieldSpec("lateness_p99_us", 8, UNSIGNED16, 1, "us", "cyclic executive lateness, 99th percentile"),
     FieldSpec("compute_max_us", 9, UNSIGNED16, 1, "us", "cyclic executive compute time, maximum"),
     FieldSpec("overruns", 10, UNSIGNED32, 1, "", "cyclic executive overruns since boot"),
+    # Added after the counter (sub-index 12, TPDO2's last byte) so the older fields keep their layout;
+    # listed before it because the node takes the first field as the state and the last as the counter.
+    FieldSpec("gear", 12, UNSIGNED8, 1, "", "Gear the gateway reports engaged"),
     FieldSpec("counter", 11, UNSIGNED8, 1, "", "status counter, +1 per status update, wraps"),
 )
 
@@ -252,6 +255,7 @@ class EcuStatus:
     compute_max_us: float
     overruns: int
     counter: int
+    gear: Gear = Gear.DRIVE  # engaged, as the gateway reports it (the speed is a magnitude)
 
     def __post_init__(self) -> None:
         where = "EcuStatus"
@@ -275,6 +279,9 @@ class EcuStatus:
         faults = _as_flags(Fault, int(self.faults), f"{where}.faults")
         if faults is not self.faults:
             object.__setattr__(self, "faults", faults)
+        gear = _as_enum(Gear, int(self.gear), f"{where}.gear")
+        if gear is not self.gear:
+            object.__setattr__(self, "gear", gear)
         if isinstance(self.overruns, bool) or not isinstance(self.overruns, int):
             raise TypeError(f"{where}.overruns must be an int, got {type(self.overruns).__name__}")
 
@@ -296,17 +303,19 @@ class EcuStatus:
         """Inverse of to_raw; ValueError names the field that is missing, out of range or undefined."""
         where = "EcuStatus"
         values = [_raw_field(raw, spec, where) for spec in STATUS_FIELDS]  # every field present, in range
-        args: list[object] = []  # in field order (STATUS_FIELDS is, see the check below the class)
+        args: dict[str, object] = {}  # by name: the wire table lists the gear before the counter
         for (spec, kind), value in zip(_STATUS_KINDS, values, strict=True):
             if kind is _SCALED:
-                args.append(decode_value(value, spec))
+                args[spec.name] = decode_value(value, spec)
             elif spec.name == "state":
-                args.append(_as_enum(EcuState, value, f"{where}.state"))
+                args[spec.name] = _as_enum(EcuState, value, f"{where}.state")
             elif spec.name == "faults":
-                args.append(_as_flags(Fault, value, f"{where}.faults"))
+                args[spec.name] = _as_flags(Fault, value, f"{where}.faults")
+            elif spec.name == "gear":
+                args[spec.name] = _as_enum(Gear, value, f"{where}.gear")
             else:
-                args.append(value)
-        return cls(*args)  # type: ignore[arg-type]
+                args[spec.name] = value
+        return cls(**args)  # type: ignore[arg-type]
 
 
 _INTEGER, _SATURATED, _SCALED = "integer", "saturated", "scaled"
@@ -316,15 +325,21 @@ _STATUS_KINDS: tuple[tuple[FieldSpec, str], ...] = tuple(
     (
         spec,
         _INTEGER
-        if spec.name in ("state", "faults", "counter")
+        if spec.name in ("state", "faults", "counter", "gear")
         else (_SATURATED if spec.name == "overruns" else _SCALED),
     )
     for spec in STATUS_FIELDS
 )
-# from_raw builds both records by position: the wire tables must list the fields in field order.
-for _record, _specs in ((EcuStatus, STATUS_FIELDS), (HostRequest, REQUEST_FIELDS)):
-    if [f.name for f in fields(_record)] != [spec.name for spec in _specs]:
-        raise RuntimeError(f"{_record.__name__}: its wire table does not list the fields in field order")
+# HostRequest.from_raw builds the record by position: its wire table must list the fields in field order.
+# EcuStatus.from_raw builds by name (its table lists the gear before the counter, see STATUS_FIELDS),
+# and the counter must stay last (the node takes it as the TPDOs' counter).
+if [f.name for f in fields(HostRequest)] != [spec.name for spec in REQUEST_FIELDS]:
+    raise RuntimeError("HostRequest: its wire table does not list the fields in field order")
+if {f.name for f in fields(EcuStatus)} != {spec.name for spec in STATUS_FIELDS} or (
+    STATUS_FIELDS[0].name,
+    STATUS_FIELDS[-1].name,
+) != ("state", "counter"):
+    raise RuntimeError("EcuStatus: its wire table must name every field, the state first, the counter last")
 
 
 # --- EMCY (CiA 301 section 7.2.7): 8 bytes = error code u16 LE, error register u8 (object 0x1001),
@@ -345,6 +360,7 @@ EMCY_CODE_BY_FAULT: dict[Fault, int] = {
     Fault.ESTOP_TIMEOUT: 0x9000,
     Fault.REQUEST_INVALID: 0x8250,  # RPDO timeout / not processed
     Fault.HOST_STOP_REQUEST: 0xFF02,
+    Fault.GEAR_TIMEOUT: 0xFF03,  # the gateway never confirmed a requested gear
 }
 EMCY_ERROR_RESET = 0x0000
 

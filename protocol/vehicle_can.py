@@ -48,7 +48,7 @@ from bywire.protocol.e2e import (
     check_counter,
     e2e_crc,
 )
-from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.ecu_types import EcuState, EstopMode, Gear
 from bywire.protocol.timebase import data_frame
 
 __all__ = [
@@ -98,11 +98,13 @@ class DbwCommand:
     ignition: bool
     steer_enable: bool
     ecu_state: EcuState
+    gear_request: Gear = Gear.DRIVE  # GearRequest: the gateway shifts only at standstill, brake applied
 
 
 @dataclass(frozen=True, slots=True)
 class WheelSpeeds:
-    """GW_WheelSpeeds (0x120): wheel speeds, unsigned (no reversing in this protocol version)."""
+    """GW_WheelSpeeds (0x120): wheel speed magnitudes, unsigned; the direction of travel is the engaged
+    gear (`Motion.gear_engaged`)."""
 
     fl_mps: float
     fr_mps: float
@@ -113,14 +115,21 @@ class WheelSpeeds:
     def mean_mps(self) -> float:
         return (self.fl_mps + self.fr_mps + self.rl_mps + self.rr_mps) / 4.0
 
+    @property
+    def max_mps(self) -> float:
+        """The fastest wheel: the car is at standstill only when every wheel is."""
+        return max(self.fl_mps, self.fr_mps, self.rl_mps, self.rr_mps)
+
 
 @dataclass(frozen=True, slots=True)
 class Motion:
-    """GW_Motion (0x121): INS longitudinal acceleration (gravity removed), yaw rate, brake pressure."""
+    """GW_Motion (0x121): INS longitudinal acceleration (gravity removed, signed in the vehicle frame,
+    + forward), yaw rate, brake pressure, and the gear the gateway reports engaged."""
 
     long_accel_mps2: float
     yaw_rate_radps: float
     brake_bar_actual: float
+    gear_engaged: Gear = Gear.DRIVE
 
 
 @dataclass(frozen=True, slots=True)
@@ -193,6 +202,7 @@ _LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
             _flag("ignition", "Ignition"),
             _flag("steer_enable", "SteerEnable"),
             _enum("ecu_state", "EcuState", EcuState),
+            _enum("gear_request", "GearRequest", Gear),
         ),
     ),
     WheelSpeeds: (
@@ -210,6 +220,7 @@ _LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
             _num("long_accel_mps2", "LongAccel", "m/s2"),
             _num("yaw_rate_radps", "YawRate", "rad/s"),
             _num("brake_bar_actual", "BrakePressureActual", "bar"),
+            _enum("gear_engaged", "GearEngaged", Gear),
         ),
     ),
     DriverInputs: (

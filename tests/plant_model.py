@@ -8,7 +8,10 @@ resistance m g c_rr with c_rr = 0.011; grade force m g sin(atan(grade)); steerin
 
 Brakes and rolling resistance are Coulomb friction: they oppose motion and, at standstill, hold the
 car up to their magnitude, so a held car on a slope stays put and a released one rolls back. The
-car may roll backwards (v < 0); like the wheel-speed sensors, `speed_mps` reports |v|.
+car may roll backwards (v < 0); like the wheel-speed sensors, `speed_mps` reports |v|, while
+`accel_mps2` (the INS) is signed in the vehicle frame. `gear` (+1 drive, -1 reverse) sets the drive
+force's direction, as the FMU's `gear` input; `GearSelector` is the gateway's selector of
+hil/plant.py (shift only at standstill with the brake applied, after SHIFT_DELAY_S).
 
 `CoreLoop` closes the ECU core (`bywire.ecu.core.core_step`) around the model for the tests.
 """
@@ -22,7 +25,8 @@ from typing import Any
 
 from bywire.ecu.calibration import Calibration
 from bywire.ecu.core import ActuatorCommand, EcuInputs, core_step, initial_core_state
-from bywire.protocol.ecu_types import EstopMode, RequestFlags
+from bywire.hil.plant import SHIFT_BRAKE_MIN_BAR, SHIFT_DELAY_S, SHIFT_STANDSTILL_SPEED_MPS
+from bywire.protocol.ecu_types import EstopMode, Gear, RequestFlags
 
 G_MPS2 = 9.81
 
@@ -57,6 +61,7 @@ class PointMassPlant:
         self.steer_rad = 0.0
         self.accel_mps2 = 0.0  # dv/dt over the last step (the INS's "gravity removed" acceleration)
         self.x_m = 0.0
+        self.gear = Gear.DRIVE  # engaged; the drive force pushes backwards in REVERSE
 
     @property
     def speed_mps(self) -> float:
@@ -80,7 +85,8 @@ class PointMassPlant:
         brk = min(max(brake_bar, 0.0), p.brake_bar_max)
         k_drive = 1.0 - math.exp(-dt_s / p.drive_lag_s)
         k_brake = 1.0 - math.exp(-dt_s / p.brake_lag_s)
-        self.drive_force_n += (thr / 100.0 * self._drive_force_max_n() - self.drive_force_n) * k_drive
+        sign = -1.0 if self.gear == Gear.REVERSE else 1.0
+        self.drive_force_n += (sign * thr / 100.0 * self._drive_force_max_n() - self.drive_force_n) * k_drive
         self.brake_bar += (brk - self.brake_bar) * k_brake
 
         theta = math.atan(self.grade)
@@ -110,6 +116,30 @@ class PointMassPlant:
         rate = (target - self.steer_rad) * k_steer / dt_s
         rate = min(max(rate, -p.steer_rate_max_radps), p.steer_rate_max_radps)
         self.steer_rad += rate * dt_s
+
+
+class GearSelector:
+    """The gateway's selector (hil/plant.py `Plant._shift`): a requested gear is engaged SHIFT_DELAY_S
+    after the request, if the car stays at standstill with the brake applied all along; `stuck`
+    makes it ignore every request (a broken selector)."""
+
+    def __init__(self, stuck: bool = False) -> None:
+        self.stuck = stuck
+        self.shift_to: Gear | None = None
+        self.done_s = math.inf
+        self.refused = 0
+
+    def step(self, now_s: float, plant: PointMassPlant, requested: Gear, brake_bar: float) -> None:
+        held = abs(plant.v_mps) < SHIFT_STANDSTILL_SPEED_MPS and brake_bar >= SHIFT_BRAKE_MIN_BAR
+        if self.stuck or requested == plant.gear:
+            self.shift_to, self.done_s = None, math.inf
+            return
+        if self.shift_to != requested or not held:
+            if not held:
+                self.refused += 1
+            self.shift_to, self.done_s = (requested, now_s + SHIFT_DELAY_S) if held else (None, math.inf)
+        elif now_s >= self.done_s:
+            plant.gear, self.shift_to, self.done_s = requested, None, math.inf
 
 
 # --- the ECU core in closed loop with the model ----------------------------------------------------
@@ -158,21 +188,32 @@ class CoreLoop:
         grade: float = 0.0,
         dt_s: float = 0.001,
         plant: PointMassPlant | None = None,
+        selector: GearSelector | None = None,
     ) -> None:
         self.cal = cal
+        self.selector = selector or GearSelector()
         self.dt_s = dt_s
         self.plant = plant or PointMassPlant(speed_mps=speed_mps, grade=grade)
         self.t_s = 0.0
         self.state = initial_core_state(self.t_s)
         self.cmd: ActuatorCommand | None = None
         self.last_inputs: EcuInputs | None = None
-        self._meas = (self.plant.speed_mps, self.plant.accel_mps2, self.plant.steer_rad)
+        self._meas = self._measure()
+
+    def _measure(self) -> tuple[float, float, float, Gear]:
+        return (self.plant.speed_mps, self.plant.accel_mps2, self.plant.steer_rad, self.plant.gear)
 
     def inputs(self, **changes: Any) -> EcuInputs:
         if changes.get("vehicle_fresh", True):
-            self._meas = (self.plant.speed_mps, self.plant.accel_mps2, self.plant.steer_rad)
-        speed, accel, steer = self._meas
-        base: dict[str, Any] = {"speed_mps": speed, "accel_meas_mps2": accel, "steer_angle_meas_rad": steer}
+            self._meas = self._measure()
+        speed, accel, steer, gear = self._meas
+        base: dict[str, Any] = {
+            "speed_mps": speed,
+            "accel_meas_mps2": accel,
+            "steer_angle_meas_rad": steer,
+            "gear_engaged": gear,
+            "wheel_speed_max_mps": speed,  # a point mass: every wheel turns at the car's speed
+        }
         base.update(changes)
         return healthy_inputs(**base)
 
@@ -181,6 +222,7 @@ class CoreLoop:
         inp = self.inputs(**changes)
         self.state, cmd = core_step(self.state, inp, self.t_s, self.cal)
         if cmd.engage:
+            self.selector.step(self.t_s, self.plant, cmd.gear_request, cmd.brake_bar)
             self.plant.step(
                 self.dt_s,
                 cmd.throttle_pct,

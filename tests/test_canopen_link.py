@@ -220,7 +220,7 @@ def test_eds_imports_with_the_contracted_objects() -> None:
 def test_eds_scaling_matches_host_link(index: int, fields: tuple[FieldSpec, ...]) -> None:
     od = canopen.import_od(str(EDS_PATH), 0x10)
     record = od[index]
-    assert sorted(s for s in record.subindices if s) == [f.subindex for f in fields]
+    assert sorted(s for s in record.subindices if s) == sorted(f.subindex for f in fields)
     for spec in fields:
         var = record[spec.subindex]
         assert var.data_type == spec.data_type, spec.name
@@ -295,8 +295,8 @@ def test_nan_and_undefined_values_are_refused_with_the_field_name() -> None:
         EcuStatus(EcuState.OFF, Fault.NONE, 0.0, 0.0, 0.0, math.nan, 0.0, 0.0, 0.0, 0, 0)
     with pytest.raises(ValueError, match="counter 256"):
         HostRequest(0.0, 0.0, RequestFlags.NONE, 256)
-    with pytest.raises(ValueError, match="0x10 of 0x11 are not defined in RequestFlags"):
-        HostRequest(0.0, 0.0, RequestFlags(0x11), 0)
+    with pytest.raises(ValueError, match="0x20 of 0x21 are not defined in RequestFlags"):
+        HostRequest(0.0, 0.0, RequestFlags(0x21), 0)
     raw = HostRequest(0.0, 0.0, RequestFlags.NONE, 0).to_raw()
     with pytest.raises(ValueError, match="not defined in RequestFlags"):
         HostRequest.from_raw({**raw, "flags": 0x80})
@@ -666,7 +666,7 @@ def test_request_validity_counters(link: Link, injector: can.BusABC) -> None:
     assert stats.accepted == 4 and link.ecu.latest_request()[0].counter == 31  # type: ignore[index]
     send(255)
     send(0)  # wraps
-    _inject(injector, RPDO1, struct.pack("<hhBB", 0, 0, 0x10, 1))  # undefined flag bit
+    _inject(injector, RPDO1, struct.pack("<hhBB", 0, 0, 0x20, 1))  # undefined flag bit
     _inject(injector, RPDO1, struct.pack("<hhB", 0, 0, 1))  # 5 bytes
     _inject(injector, RPDO1, struct.pack("<hhBBB", 0, 0, 1, 1, 0))  # 7 bytes
     link.run(0.001, requests_every_ms=None)
@@ -689,7 +689,7 @@ def test_status_snapshot_needs_every_tpdo_and_rejects_bad_frames(link: Link, inj
     link.run(0.002)
     stats = link.host.status_stats
     assert (stats.incomplete, stats.malformed) == (2, 1)
-    _inject(injector, TPDO2, bytes(6) + b"\x05")
+    _inject(injector, TPDO2, bytes(6) + b"\x05\x00")
     _inject(injector, TPDO3, bytes(8))
     _inject(injector, TPDO1, bytes([9]) + bytes(7))  # state 9 is no EcuState
     _inject(injector, TPDO1, bytes(7) + b"\x06")  # counter differs from TPDO2's: incoherent

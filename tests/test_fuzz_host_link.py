@@ -24,9 +24,9 @@ from bywire.protocol.host_link import EcuStatus, HostRequest
 from bywire.protocol.udp_bus import MalformedDatagram, UdpCanBus, decode_datagram, encode_datagram
 
 RPDO1, HOST_HB, ECU_HB, EMCY, NMT, SDO_RX = 0x210, 0x701, 0x710, 0x090, 0x000, 0x610
-TPDO_LENGTHS = {0x190: 8, 0x290: 7, 0x390: 8}
+TPDO_LENGTHS = {0x190: 8, 0x290: 8, 0x390: 8}
 HB_STATES = {0, 4, 5, 127}
-FAULT_BITS = 0x7FF
+FAULT_BITS = 0xFFF
 # Bus-level examples cost a few ms each (virtual bus, EcuNode/HostMaster pumps); pure ones are cheap.
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FUZZ_PURE = settings(max_examples=300, deadline=None)

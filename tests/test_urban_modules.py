@@ -105,8 +105,11 @@ def test_controller_stops_at_the_stop_point_and_holds_without_a_plan() -> None:
     assert _control(None).accel_mps2 < 0.0 and _control(None).controller == "none"
     stale = _control(_plan(0.5), now=1.0)  # 0.5 s old
     assert stale.accel_mps2 < 0.0 and stale.controller == "none"
+    # a backward leg drives in reverse: the REVERSE flag, the request along the direction of travel
     backward = _control(_plan(1.0, direction=-1), speed=0.0)
-    assert backward.accel_mps2 <= -2.0
+    assert backward.flags & RequestFlags.REVERSE and backward.accel_mps2 > 0.0
+    forward = _control(_plan(1.0), speed=0.0)
+    assert not forward.flags & RequestFlags.REVERSE
 
 
 def test_the_urban_configuration_loads() -> None:

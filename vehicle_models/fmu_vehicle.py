@@ -68,11 +68,13 @@ class VehicleInputs:
     steer_angle_rad: float = 0.0  # road-wheel angle request, + left
     grade_pct: float = 0.0  # road grade, + uphill
     wind_mps: float = 0.0  # wind along the car's axis, + head wind
+    gear: float = 1.0  # direction of the drive force: +1 drive, -1 reverse, 0 neutral
 
 
 @dataclass(slots=True)
 class VehicleOutputs:
-    """Plant state after a step. Speeds are signed (negative when rolling backwards)."""
+    """Plant state after a step. Speeds, wheel speeds and the acceleration are signed in the vehicle
+    frame (negative when rolling backwards)."""
 
     speed_mps: float
     accel_mps2: float
@@ -315,6 +317,10 @@ class FmuVehicle:
             u[idx[4]] = inputs.wind_mps * k[4] + c[4]
         elif inputs.wind_mps != 0.0:
             raise self._unmapped_input("wind_mps", inputs.wind_mps)
+        if idx[5] >= 0:
+            u[idx[5]] = inputs.gear * k[5] + c[5]
+        elif inputs.gear != 1.0:
+            raise self._unmapped_input("gear", inputs.gear)
 
     def _unmapped_input(self, role: str, value: float) -> ValueError:
         return ValueError(

@@ -24,6 +24,8 @@ Unmapped optional roles fall back as follows (implemented in `fmu_vehicle.FmuVeh
 
 - ``grade_pct``, ``wind_mps`` (inputs): the FMU cannot be told, so only 0 is accepted; a non-zero
   value raises instead of silently simulating a flat road in still air.
+- ``gear`` (input, the drive force's direction: +1 drive, -1 reverse, 0 neutral): an FMU without it
+  only drives forward, so only +1 is accepted.
 - ``wheel_speed_{fl,fr,rl,rr}_mps``: ``speed -/+ yaw_rate * track_width_m / 2`` (left/right, both
   axles; no steering projection).
 - ``brake_bar_actual``, ``steer_angle_rad_actual``: the commanded value (ideal actuator).
@@ -40,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 INPUT_ROLES_REQUIRED = ("throttle_pct", "brake_bar", "steer_angle_rad")
-INPUT_ROLES_OPTIONAL = ("grade_pct", "wind_mps")
+INPUT_ROLES_OPTIONAL = ("grade_pct", "wind_mps", "gear")
 OUTPUT_ROLES_REQUIRED = (
     "speed_mps",
     "accel_mps2",

@@ -17,9 +17,12 @@ in 10 releases.
 `urban_control` tracks the plan's stub with `lateral_step` (eqs. 18-23, the steering angle goes to the
 ECU with the STEER flag) and `longitudinal_step` (following / stopping with hysteresis / velocity,
 max/min combination, saturation), the stop distance taken along the stub from the rear axle's projection
-at *this* release. Our Passat plant has no reverse gear (vehicle_models/passat: the drive force is always
-forward): a backward leg is held at standstill and counted (`reverse_held`), and the behaviour's recovery
-takes over; scenarios that need a K-turn use a street wide enough for the forward half circle.
+at *this* release. A backward leg (the stub's direction -1: leaving a parking spot, the K-turn's
+backward half) sets `RequestFlags.REVERSE`: the acceleration request stays along the direction of travel
+(positive: faster backwards), the ECU shifts at standstill (brakes, holds, waits for the gateway) and
+caps the reverse speed (ecu/gear.py). The pose's speed is signed (negative backwards), so extrapolation
+runs the right way; the longitudinal controller sees its magnitude. `reverse_held` (backward legs held at
+standstill: there is no such case any more, it stays 0) remains in the summary for the JSON contract.
 
 Both computing modules are pure functions of their inputs (replayable, `bywire log replay --check`).
 """
@@ -256,6 +259,7 @@ class UrbanControl(Module):
         self.state = LongitudinalState()
         self.log = log or UrbanLog()
         self._steer = 0.0
+        self._reverse = False  # the last usable plan's leg ran backwards
         self._path_key: float | None = None
         self._path: PathSamples | None = None
 
@@ -281,6 +285,7 @@ class UrbanControl(Module):
         limit: SafetyLimit | None = ctx.latest(SAFETY_LIMIT)
         speed = abs(pose.speed_mps) if pose is not None and pose.valid else 0.0
         accel, controller, v_des, gap = HOLD_DECEL_MPS2, "none", 0.0, math.nan
+        reverse = self._reverse
         usable = (
             plan is not None
             and plan.valid
@@ -311,11 +316,12 @@ class UrbanControl(Module):
                 v_mps=speed, v_des_mps=max(v_des, 0.0), lead=lead, stop_distance_m=stop
             )
             self.state, accel, controller = longitudinal_step(self.state, inputs, self.lon)
-            if direction < 0:
-                # no reverse gear in our plant: hold at standstill, the behaviour's recovery takes over
-                accel, controller = min(accel, HOLD_DECEL_MPS2), "stopping"
-                self.log.reverse_held += 1
+            reverse = direction < 0
         flags = RequestFlags.STEER if mission is None else mission.request_flags(steer=True)
+        if reverse:
+            # the gear follows the plan's leg; without a usable plan the ECU keeps the gear it has
+            flags |= RequestFlags.REVERSE
+        self._reverse = reverse
         ctx.publish(
             CONTROL,
             ControlRequest(

@@ -1,7 +1,8 @@
 /*
  * bywire VW Passat plant: FMI 2.0 Co-Simulation FMU.
  *
- * Longitudinal: point mass with a lagged drive force (force and power limited), a lagged
+ * Longitudinal: point mass with a lagged drive force (force and power limited, its direction
+ * set by the gear input: +1 drive, -1 reverse), a lagged
  * brake pressure, aerodynamic drag with head wind, rolling resistance and road grade.
  * Brakes and rolling resistance act as Coulomb friction with stiction: at standstill they
  * hold the car while they exceed the other forces, so the car neither creeps nor chatters
@@ -18,11 +19,14 @@
  * exact first-order discretisation so any time constant >= 0 is stable.
  *
  * Deviations from a full vehicle model (see README.md): longitudinal and lateral motion are
- * decoupled (no cornering drag, no vy*r term), no gears, no reverse gear (the drive force
- * always pushes forward), no tyre saturation, no load transfer.
+ * decoupled (no cornering drag, no vy*r term), no gear ratios (the gear input only sets the
+ * drive force's sign; the gateway emulation owns the shift delay), no tyre saturation, no load
+ * transfer.
  *
  * Conventions: ISO 8855, x forward, y left, yaw counter-clockwise; SI units; the position
- * and speed refer to the centre of gravity.
+ * and speed refer to the centre of gravity. speed_mps, accel_mps2 and the wheel speeds are
+ * signed in the vehicle frame (negative while reversing); distance_m is signed too (it
+ * integrates the signed speed: backing 10 m takes it down by 10 m).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -85,7 +89,8 @@ typedef enum { CAUS_PARAMETER, CAUS_INPUT, CAUS_OUTPUT } Causality;
     X(BRAKE_BAR_ACTUAL, "brake_bar_actual", CAUS_OUTPUT, 0.0)              \
     X(STEER_ANGLE_RAD_ACTUAL, "steer_angle_rad_actual", CAUS_OUTPUT, 0.0)  \
     X(DRIVE_FORCE_N, "drive_force_n", CAUS_OUTPUT, 0.0)                    \
-    X(LATERAL_SPEED_MPS, "lateral_speed_mps", CAUS_OUTPUT, 0.0)
+    X(LATERAL_SPEED_MPS, "lateral_speed_mps", CAUS_OUTPUT, 0.0)            \
+    X(GEAR, "gear", CAUS_INPUT, 1.0)
 
 #define AS_ENUM(id, name, caus, start) VR_##id,
 enum { VARIABLES(AS_ENUM) N_VR };
@@ -137,7 +142,8 @@ static double drive_force_command_n(const double* v, double speed_mps) {
     const double throttle = clamp(v[VR_THROTTLE_PCT], 0.0, 100.0);
     /* Below 1 m/s the power limit would demand unbounded force; the force limit rules there. */
     const double limit_n = fmin(v[VR_DRIVE_FORCE_MAX_N], v[VR_DRIVE_POWER_MAX_W] / fmax(fabs(speed_mps), 1.0));
-    return throttle / 100.0 * limit_n;
+    /* The gear only turns the drive force around (no ratios); 0 is neutral. */
+    return clamp(v[VR_GEAR], -1.0, 1.0) * throttle / 100.0 * limit_n;
 }
 
 static void kinematic_lateral(const double* v, double speed_mps, double delta_rad, double* vy_mps,
