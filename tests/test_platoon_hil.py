@@ -26,7 +26,7 @@ def test_gcdc_heat_in_three_processes(tmp_path: Path) -> None:
     # stops a car it was driving when the heartbeat is that late); a driver engages after start-up too.
     doc["host"]["engage_at_s"] = 3.0
     doc["world"]["gps"]["outages"][1]["at_s"] = 40.0  # our own bridge, inside the 60 s
-    # The spectral estimate needs the whole heat, the speed-limit zone comes at 84 s: judged in SIL.
+    # The spectral estimate needs the whole 300 s heat, the speed-limit zone comes at ~280 s: judged in SIL.
     doc["checks"] = [
         c for c in doc["checks"] if c["metric"] not in ("string_stability", "speed_limit_excess_mps")
     ]
