@@ -71,6 +71,7 @@ from bywire.ecu.gear import (
     SHIFT_BRAKE_SETTLE_S,
     SHIFT_DECEL_MPS2,
     SHIFT_STANDSTILL_SPEED_MPS,
+    accel_along_travel_mps2,
     reverse_accel_limit_mps2,
 )
 from bywire.ecu.safety import (
@@ -178,7 +179,7 @@ def judge_inputs(inp: EcuInputs, cal: Calibration) -> InputVerdict:
         usable,
         bool(flags & _STEER),
         _REVERSE if flags & _REVERSE_FLAG else _DRIVE,
-        -inp.accel_meas_mps2 if inp.gear_engaged == _REVERSE else inp.accel_meas_mps2,
+        accel_along_travel_mps2(inp.accel_meas_mps2, inp.gear_engaged),
         usable and inp.wheel_speed_max_mps < SHIFT_STANDSTILL_SPEED_MPS,
     )
 

@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from typing import Any
 
 import can
@@ -608,23 +608,31 @@ class PlatoonControl(Module):
         need = v * v / (2.0 * max(room, 0.1))
         return min(max(need, -self.params.accel_min_mps2), self.emergency_decel)
 
-    def _compensated(
-        self, world: LeadSet, leads: tuple[Lead, ...], preds: list[LeaderPrediction]
+    def _predictions(
+        self, world: LeadSet, leads: tuple[Lead, ...], age_s: float, v: float
     ) -> list[LeaderPrediction]:
-        """The leaders' predictions shifted to their acceleration `accel_lead_s` ahead (jerk from the
-        world model's successive updates; a radar-only lead is keyed by its place)."""
-        keys = [lead.station_id if lead.station_id >= 0 else ("radar", k) for k, lead in enumerate(leads)]
-        jerks = self._jerk.update(
-            world.t_s, {key: lead.accel_mps2 for key, lead in zip(keys, leads, strict=True)}
-        )
-        t = self.params.time_grid_s()
+        """The leaders' predictions on our QP grid from now (the world model's are `age_s` old, relative
+        to where our front bumper was then), shifted to their acceleration `accel_lead_s` ahead (jerk from
+        the world model's successive updates; a radar-only lead is keyed by its place) and capped at our
+        speed limit (`cap_prediction_speed`)."""
+        p, comp = self.params, self.compensation
+        t = p.time_grid_s()
+        keys: list[Hashable] = [
+            lead.station_id if lead.station_id >= 0 else ("radar", k) for k, lead in enumerate(leads)
+        ]
+        jerks: dict[Hashable, float] = {}
+        if comp.lead_s > 0.0:
+            accels = {key: lead.accel_mps2 for key, lead in zip(keys, leads, strict=True)}
+            jerks = self._jerk.update(world.t_s, accels)
         out = []
-        for key, lead, pred in zip(keys, leads, preds, strict=True):
-            pos, spd = compensate_prediction(
-                t, pred.positions_m, pred.speeds_mps, lead.accel_mps2, jerks[key], self.compensation,
-                self.params.speed_max_mps,
-            )  # fmt: skip
-            out.append(LeaderPrediction(pos, spd))
+        for key, lead in zip(keys, leads, strict=True):
+            pos = np.interp(t + age_s, lead.grid_s, lead.positions_m) - v * age_s
+            spd = np.interp(t + age_s, lead.grid_s, lead.speeds_mps)
+            if comp.lead_s > 0.0:
+                pos, spd = compensate_prediction(
+                    t, pos, spd, lead.accel_mps2, jerks[key], comp, p.speed_max_mps
+                )
+            out.append(LeaderPrediction(*cap_prediction_speed(t, pos, spd, p.speed_max_mps)))
         return out
 
     def step(self, ctx: ModuleContext) -> None:
@@ -659,24 +667,8 @@ class PlatoonControl(Module):
                 # The world model runs slower than we do: its predictions are relative to our front bumper
                 # at its t_s; shift them to now (we have moved v * age since).
                 age = max(0.0, now - world.t_s)
-                grid = p.time_grid_s() + age
                 gap = float(np.interp(age, leads[0].grid_s, leads[0].positions_m)) - v * age
-                preds = [
-                    LeaderPrediction(
-                        np.interp(grid, lead.grid_s, lead.positions_m) - v * age,
-                        np.interp(grid, lead.grid_s, lead.speeds_mps),
-                    )
-                    for lead in leads
-                ]
-                if self.compensation.lead_s > 0.0:
-                    preds = self._compensated(world, leads, preds)
-                t_grid = p.time_grid_s()
-                preds = [
-                    LeaderPrediction(
-                        *cap_prediction_speed(t_grid, pr.positions_m, pr.speeds_mps, p.speed_max_mps)
-                    )
-                    for pr in preds
-                ]
+                preds = self._predictions(world, leads, age, v)
                 decision = self.strategy.step(v, preds)
                 feasible = decision.feasible
                 a_platoon = decision.accel_cmd_mps2
