@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.protocol.v2x.codec import DriveDirection, VehicleState, encode
+from bywire.protocol.v2x.codec import DriveDirection, V2xDecodeError, VehicleState, encode, peek_header
 from bywire.protocol.v2x.fuzz import FuzzKind, V2xFuzzer, flood, fuzz_receiver, retime
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
 from bywire.protocol.v2x.transport import PeriodicSender, V2xTransport
@@ -147,6 +147,13 @@ def _legit_sender(url: str, stop: threading.Event, start_s: float, out: list[int
         out.append(PeriodicSender(tx, 10.0).run(produce, stop=stop.is_set))
 
 
+def _station_of(payload: bytes) -> int | None:
+    try:
+        return peek_header(payload).station_id
+    except V2xDecodeError:
+        return None
+
+
 def _flood_and_listen(count: int, seconds: float, tmp_path: Path) -> None:
     url = f"v2x://127.255.255.255:{free_port()}"
     rx_sock = V2xTransport(url)
@@ -191,6 +198,7 @@ def _flood_and_listen(count: int, seconds: float, tmp_path: Path) -> None:
     legit = threading.Thread(target=_legit_sender, args=(url, stop, time.time(), legit_sent))
     legit.start()
     accepted_legit = 0
+    legit_rejected: list[str] = []  # why, for the failure message
     hang_limit = time.monotonic() + 3 * seconds + 30.0  # a hang, not a speed limit
     try:
         quiet_since = None
@@ -201,9 +209,12 @@ def _flood_and_listen(count: int, seconds: float, tmp_path: Path) -> None:
                 stop.set()
             got = rx_sock.poll(512)
             for d in got:
-                msg = receiver.check(d.payload, d.rx_time_s, OWN).message
+                verdict = receiver.check(d.payload, d.rx_time_s, OWN)
+                msg = verdict.message
                 if msg is not None and msg.station_id == LEGIT_ID:
                     accepted_legit += 1
+                elif msg is None and _station_of(d.payload) == LEGIT_ID:
+                    legit_rejected.append(f"{verdict.reason}: {verdict.detail}")
             if got:
                 quiet_since = None
             elif stop.is_set() and not legit.is_alive():
@@ -231,7 +242,7 @@ def _flood_and_listen(count: int, seconds: float, tmp_path: Path) -> None:
     assert rx_sock.received == sent + legit_count == receiver.received
     assert receiver.received == receiver.accepted + sum(receiver.rejected.values())
     # Every legitimate message was accepted, in the middle of the flood.
-    assert accepted_legit == legit_count
+    assert accepted_legit == legit_count, legit_rejected
     assert sum(report["by_kind"].values()) == sent
     assert receiver.rejected["quarantined"] > 0 and receiver.rejected["own_station"] > 0
 

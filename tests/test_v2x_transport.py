@@ -154,6 +154,25 @@ def test_periodic_sender_rate_and_stamps(url: str) -> None:
         PeriodicSender(tx, 10.0).run(produce)
 
 
+def test_periodic_sender_keeps_half_a_period_after_a_late_slot(url: str) -> None:
+    # A stall of just under two periods makes the next slot late by just under one, so it is sent at
+    # once, and the slot after it is due right away; back-to-back sends would share a millisecond stamp
+    # and the receiver would reject the second as a replay (seen in the UDP flood test under load).
+    period_s = 0.05
+    stamps: list[float] = []
+
+    def produce(t: float) -> bytes:
+        stamps.append(t)
+        if len(stamps) == 2:
+            time.sleep(1.9 * period_s)  # the encoder loses the CPU
+        return b"x"
+
+    with V2xTransport(url, receive=False) as tx:
+        assert PeriodicSender(tx, 1.0 / period_s).run(produce, count=5) == 5
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
+    assert min(gaps) >= 0.5 * period_s - 1e-3, gaps
+
+
 def test_periodic_sender_skips_none_and_stops(url: str) -> None:
     with V2xTransport(url, receive=False) as tx:
         sender = PeriodicSender(tx, 100.0)

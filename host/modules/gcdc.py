@@ -113,7 +113,13 @@ from bywire.host.world.radar_fusion import FusionConfig, RadarFusion, RadarMeasu
 from bywire.host.world.vehicles import VehicleManager, VehicleMessage
 from bywire.protocol.ecu_types import RequestFlags
 from bywire.protocol.timebase import rx_time_s
-from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightState, VehicleState, encode
+from bywire.protocol.v2x.codec import (
+    GEN_TIME_RESOLUTION_S,
+    SpeedLimit,
+    TrafficLightState,
+    VehicleState,
+    encode,
+)
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
 from bywire.protocol.vehicle_can import Motion, VehicleCodec, VehicleRx, WheelSpeeds
 
@@ -327,7 +333,7 @@ class V2vTxIo(Module):
             and pose.valid
             and not pose.stale
             and self.transport is not None
-            and gen > self._last_gen
+            and gen >= self._last_gen + GEN_TIME_RESOLUTION_S  # an equal stamp on the wire is a replay
         ):
             azimuth = self.frame.true_azimuth_from_heading(pose.heading_rad, pose.lat_deg, pose.lon_deg)
             state = VehicleState(

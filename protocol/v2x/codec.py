@@ -94,6 +94,7 @@ LEAP_SECONDS_UNIX_S: Final = (1_136_073_600, 1_230_768_000, 1_341_100_800, 1_435
 _LEAP_BOUNDARIES_ITS_MS: Final = tuple(
     (t - ITS_EPOCH_UNIX_S) * 1000 + (k + 1) * 1000 for k, t in enumerate(LEAP_SECONDS_UNIX_S)
 )
+GEN_TIME_RESOLUTION_S: Final = 1e-3  # TimestampIts counts ms: stamps closer than this may encode equal
 GENERATION_DELTA_MODULO: Final = 65_536  # CAM GenerationDeltaTime = TimestampIts mod 2^16
 
 

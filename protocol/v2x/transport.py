@@ -358,7 +358,9 @@ class PeriodicSender:
 
     produce gets the wall-clock (UNIX) time of its slot, to stamp as the generation time, and may
     return None to skip a slot. A late slot is sent at once; slots missed by more than one period are
-    skipped (counted in `skipped`), never sent in a burst.
+    skipped (counted in `skipped`), never sent in a burst. Two sends are at least half a period apart:
+    a late slot sent at once must not be followed within the same millisecond by the next one, whose
+    equal generation time receivers rightly reject as a replay (ETSI CAM: T_GenCamMin bounds the rate).
     """
 
     def __init__(self, transport: V2xTransport, rate_hz: float) -> None:
@@ -386,11 +388,15 @@ class PeriodicSender:
         end = math.inf if duration_s is None else start + duration_s
         slot = 0
         sent_here = 0
+        last_send = -math.inf
         while (count is None or sent_here < count) and not (stop is not None and stop()):
             deadline = start + slot * self.period_s
             if deadline >= end:
                 break
             now = time.monotonic()
+            if now < last_send + 0.5 * self.period_s:
+                time.sleep(last_send + 0.5 * self.period_s - now)
+                now = time.monotonic()
             if now < deadline:
                 time.sleep(deadline - now)
             elif now - deadline > self.period_s:
@@ -398,6 +404,7 @@ class PeriodicSender:
                 self.skipped += missed
                 slot += missed
                 continue
+            last_send = time.monotonic()
             payload = produce(time.time())
             if payload is not None and self.transport.send(payload):
                 sent_here += 1
