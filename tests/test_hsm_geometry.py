@@ -20,6 +20,7 @@ from bywire.host.behaviour.intersection_manager import crossing_geometry
 from bywire.host.behaviour.intersection_map import IntersectionMap, convex_hull, inside_convex
 from bywire.host.behaviour.manoeuvre import kturn_legs, polyline_leg, quintic_step, shifted_leg
 from bywire.host.behaviour.precedence import Turn
+from bywire.host.behaviour.route_view import curve_speed_cap_mps
 from bywire.host.behaviour.situation import (
     BlockedRoad,
     EgoState,
@@ -128,6 +129,17 @@ def test_polyline_leg_samples_and_reversing_heading() -> None:
 @pytest.fixture(scope="module")
 def cross():  # type: ignore[no-untyped-def]
     return cross_network([1, 3])
+
+
+def test_curve_speed_caps_lateral_acceleration_and_tight_turns() -> None:
+    k = np.array([0.0, 0.02, 0.1, 0.15, 0.199, 0.2, 0.212, -0.2])
+    cap = curve_speed_cap_mps(k)
+    lateral = np.sqrt(rules.CURVE_LATERAL_ACCEL_MPS2 / np.maximum(np.abs(k), 1e-9))
+    gentle = np.abs(k) < rules.TIGHT_TURN_CURVATURE_1PM
+    np.testing.assert_allclose(cap[gentle], lateral[gentle])
+    # near full lock the steering's rate sets the speed, not the lateral acceleration (3.2 m/s at 0.2)
+    assert np.all(cap[~gentle] == np.minimum(lateral[~gentle], rules.TIGHT_TURN_SPEED_MPS))
+    assert np.all(cap[~gentle] <= rules.TIGHT_TURN_SPEED_MPS) and lateral[-1] > 3.0
 
 
 def test_route_view_events_and_checkpoints(cross) -> None:  # type: ignore[no-untyped-def]

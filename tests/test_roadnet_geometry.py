@@ -15,10 +15,12 @@ from test_roadnet_helpers import network
 from bywire.host.roadnet.geo import PlanarFrame, TransverseMercator, frame_for
 from bywire.host.roadnet.path import (
     DEFAULT_STEP_M,
+    SHARPNESS_MAX_1PM2,
     Path,
     PathPoint,
     concat,
     connector,
+    drivable_connector,
     smooth_curve,
     wrap_angle,
 )
@@ -309,6 +311,71 @@ def test_connector_shapes_are_sensible() -> None:
     joined = concat([arc1, connector(e, arc2.start), arc2])
     assert np.max(np.abs(np.diff(joined.curvature_1pm))) < 0.02
     assert np.max(np.abs(np.diff(joined.heading_unwrapped_rad))) < 0.02
+
+
+# A Passat at full lock (l = 2.72 m, 30 deg) turns on 0.212 1/m: the graph's limit for exits.
+PASSAT_FULL_LOCK_1PM = math.tan(math.radians(30.0)) / 2.72
+
+
+def _peak(p: Path) -> float:
+    return float(np.max(np.abs(p.curvature_1pm)))
+
+
+def test_drivable_connector_opens_a_stop_line_turn_the_car_cannot_steer() -> None:
+    # The sample mission's exit 11.1.4 -> 7.1.11 in its exit's frame: a right turn of 104 deg to an entry
+    # 3.9 m ahead and 12.5 m to the right. The least-energy quintic turns on 2.9 m, the Passat at full
+    # lock on 4.7 m: it ran 0.87 m wide there.
+    start, end = (0.0, 0.0, 0.0, 0.0), (3.92, -12.5, math.radians(-104.0), 0.0)
+    plain = connector(start, end)
+    assert 1.0 / _peak(plain) < 3.0
+    wide = drivable_connector(start, end, PASSAT_FULL_LOCK_1PM)
+    assert _peak(wide) < PASSAT_FULL_LOCK_1PM + 0.005  # (a hair over it: the search's least excess)
+    assert _peak(wide) < 0.65 * _peak(plain)
+    assert (wide.start.x_m, wide.start.y_m) == (0.0, 0.0) and (wide.end.x_m, wide.end.y_m) == end[:2]
+    assert abs(wrap_angle(wide.end.heading_rad - end[2])) < 1e-9 and abs(wide.start.heading_rad) < 1e-9
+    # evenly sampled despite unequal tangents, and smooth: no kink, no curvature ramp steeper than the
+    # search allows (a steering wheel turns at a finite rate), none at the run-in
+    assert np.max(np.diff(wide.s_m)) <= DEFAULT_STEP_M * 1.05
+    assert np.max(np.abs(np.diff(wide.heading_unwrapped_rad))) < 0.08
+    sharpness = np.abs(np.diff(wide.curvature_1pm)) / np.diff(wide.s_m)
+    assert np.max(sharpness) < 1.1 * SHARPNESS_MAX_1PM2
+    # it runs in along the entry lane's line: the last metres are straight on it
+    tail = wide.s_m > wide.length_m - 2.0
+    assert np.max(np.abs(wide.curvature_1pm[tail])) < 1e-3
+
+
+def test_drivable_connector_keeps_a_curve_that_is_already_drivable() -> None:
+    start, end = (0.0, 0.0, 0.0, 0.0), (20.0, 20.0, math.pi / 2, 0.0)
+    plain = connector(start, end)
+    same = drivable_connector(start, end, 0.18)
+    assert _peak(plain) < 0.18
+    np.testing.assert_array_equal(same.x_m, plain.x_m)
+    np.testing.assert_array_equal(same.curvature_1pm, plain.curvature_1pm)
+    with pytest.raises(ValueError, match="max_curvature_1pm"):
+        drivable_connector(start, end, 0.0)
+    with pytest.raises(ValueError, match="max_curvature_1pm"):
+        drivable_connector(start, end, math.nan)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(2.0, 25.0),
+    st.floats(-25.0, 25.0),
+    st.floats(-2.4, 2.4),
+    st.floats(-0.05, 0.05),
+    st.floats(0.05, 0.3),
+)
+def test_drivable_connector_never_steers_harder_than_the_plain_one(
+    ahead_m: float, side_m: float, turn_rad: float, k_end: float, limit: float
+) -> None:
+    start, end = (0.0, 0.0, 0.0, 0.0), (ahead_m, side_m, turn_rad, k_end)
+    plain = connector(start, end)
+    wide = drivable_connector(start, end, limit)
+    assert _peak(wide) <= max(_peak(plain), limit) + 1e-3
+    assert (wide.end.x_m, wide.end.y_m) == (ahead_m, side_m)
+    assert abs(wrap_angle(wide.end.heading_rad - turn_rad)) < 1e-6
+    assert wide.end.curvature_1pm == pytest.approx(k_end, abs=1e-6)
+    assert np.all(np.isfinite(wide.curvature_1pm)) and np.max(np.diff(wide.s_m)) < 2 * DEFAULT_STEP_M
 
 
 def test_pathpoint_is_a_pose() -> None:

@@ -1,7 +1,8 @@
 """Urban scenarios (issue 5) in the three-process HIL, through `bywire hil run --mode hil` as a user runs it:
 bus servers, ECU, plant (with the urban world, its object list on loopback UDP) and host (the `urban`
 configuration) as separate processes. A four-way stop with a car waiting, the host frozen mid-turn
-(SIGSTOP), and the DARPA sample mission's first 90 s; behaviour is judged, never timing."""
+(SIGSTOP), the DARPA sample mission's first 90 s and the whole mission; behaviour is judged, never
+timing."""
 
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from bywire.hil.scenario import builtin_scenarios
 pytestmark = pytest.mark.hil
 
 
-def _run_hil(doc: dict[str, Any], tmp_path: Path) -> dict[str, Any]:
-    result, report = run_in_hil(doc, tmp_path)
+def _run_hil(doc: dict[str, Any], tmp_path: Path, timeout_s: float = 400.0) -> dict[str, Any]:
+    result, report = run_in_hil(doc, tmp_path, timeout_s)
     assert (report / f"{doc['name']}_urban.png").stat().st_size > 20_000
     return result
 
@@ -59,6 +60,19 @@ def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> N
     assert m["checkpoints_reached_list"][:2] == [1, 2]
     assert m["lateral_error_rms_m"] <= 0.2 and m["lateral_error_max_m"] <= 0.5
     assert m["collisions"] == 0 and m["stop_line_stops"] >= 1
+
+
+@pytest.mark.slow  # ~33 min of wall time: the whole mission, every check of the scenario
+def test_darpa_sample_mission_whole_in_three_processes(tmp_path: Path) -> None:
+    if not (shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt").is_file():
+        pytest.skip(f"DARPA sample RNDF not found at {shared_data_dir() / 'rndf' / 'darpa_sample'}")
+    doc = yaml.safe_load(builtin_scenarios()["darpa_sample_mission"].read_text())
+    doc["name"] = "darpa_sample_mission_hil_whole"
+    result = _run_hil(doc, tmp_path, timeout_s=float(doc["duration_s"]) + 600.0)
+    assert result["verdict"] == "pass", [c for c in result["checks"] if not c["passed"]]
+    m = result["metrics"]
+    assert m["mission_complete"] and m["checkpoints_reached"] == m["checkpoints_total"] == 18
+    assert m["lateral_error_max_m"] <= 0.5 and m["collisions"] == 0 and m["reverse_held"] == 0
 
 
 @pytest.mark.slow  # the default run has the spine's SIGSTOP test in HIL and this scenario in SIL

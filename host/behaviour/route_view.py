@@ -5,8 +5,9 @@ after a replan from the current pose the route starts at the waypoint ahead, and
 comes first so that our position lies on the path. It precomputes, once per route:
 
 - the path (x, y, heading, curvature, s) of all edges joined, and each edge's [start, end) arc length;
-- per sample, the speed cap: the edge's MDF maximum (30 mph where the MDF has none, rules 1.7), and in
-  curves v = sqrt(a_lat / |kappa|) with `rules.CURVE_LATERAL_ACCEL_MPS2`;
+- per sample, the speed cap: the edge's MDF maximum (30 mph where the MDF has none, rules 1.7), in
+  curves v = sqrt(a_lat / |kappa|) with `rules.CURVE_LATERAL_ACCEL_MPS2`, and in turns near full lock
+  (|kappa| >= `rules.TIGHT_TURN_CURVATURE_1PM`) at most `rules.TIGHT_TURN_SPEED_MPS`;
 - the events ahead: intersections (an EXIT edge of an intersection that `is_real`, or a stop line:
   the waypoint where we enter it, whether we stop there, where the crossing ends), lane changes,
   manoeuvre pieces (zone, parking, K-turn edges: `Route.drive_pieces`), checkpoints and the end.
@@ -158,6 +159,14 @@ def objects_on_path(
     return out
 
 
+def curve_speed_cap_mps(kappa_1pm: npt.ArrayLike) -> FloatArray:
+    """The speed a curve allows: 2 m/s^2 lateral, and at most `rules.TIGHT_TURN_SPEED_MPS` near full
+    lock (see rules.TIGHT_TURN_CURVATURE_1PM)."""
+    k = np.abs(np.asarray(kappa_1pm, dtype=np.float64))
+    cap = np.sqrt(rules.CURVE_LATERAL_ACCEL_MPS2 / np.maximum(k, 1e-9))
+    return np.where(k >= rules.TIGHT_TURN_CURVATURE_1PM, np.minimum(cap, rules.TIGHT_TURN_SPEED_MPS), cap)
+
+
 class RouteView:
     """A route with its precomputed path, speeds and events (see the module docstring)."""
 
@@ -216,8 +225,7 @@ class RouteView:
             top = rules.SPEED_LIMIT_MAX_MPS
             per_edge = np.array([min(e.speed_max_mps or top, top) for e in self.edges])
             limit = per_edge[idx]
-        curve = np.sqrt(rules.CURVE_LATERAL_ACCEL_MPS2 / np.maximum(np.abs(self.kappa), 1e-9))
-        return np.asarray(np.minimum(limit, curve), dtype=np.float64)
+        return np.asarray(np.minimum(limit, curve_speed_cap_mps(self.kappa)), dtype=np.float64)
 
     def _intersections(self, imap: IntersectionMap) -> list[IntersectionEvent]:
         events: list[IntersectionEvent] = []

@@ -12,8 +12,10 @@ Vertices: every lane waypoint, zone perimeter point and spot waypoint (`Waypoint
 - LANE: consecutive waypoints of a lane, a piece of the lane's one smooth curve (`path.smooth_curve`
   through all its waypoints), so that consecutive lane edges join with continuous curvature.
 - EXIT: an RNDF ``exit`` (lane -> lane, lane -> zone perimeter, perimeter -> lane), a `path.connector`
-  tangent to both lanes and matching their curvature; into or out of a zone, the perimeter side takes the
-  chord's direction and zero curvature.
+  tangent to both lanes and matching their curvature, widened by `path.drivable_connector` where it
+  would turn tighter than the car's full lock (`GraphParams.exit_max_curvature_1pm`; deviation: the
+  paper's smoothing is geometric only, and tight RNDF exits then ask for radii no car steers); into
+  or out of a zone, the perimeter side takes the chord's direction and zero curvature.
 - LANE_CHANGE (derived): from a waypoint to the first waypoint of an adjacent lane (lane number +-1) in the
   same direction that lies at least `GraphParams.lane_change_min_length_m` ahead; a connector.  Only where
   the lanes really run side by side: the foot point on the other lane lies square across, 1 m to 2.2 lane
@@ -53,7 +55,16 @@ from .errors import ParseWarning
 from .geo import CoordinateFrame, frame_for
 from .ids import LaneId, WaypointId
 from .mdf import Mission, ResolvedMission
-from .path import DEFAULT_STEP_M, Path, PathPoint, concat, connector, smooth_curve, wrap_angle
+from .path import (
+    DEFAULT_STEP_M,
+    Path,
+    PathPoint,
+    concat,
+    connector,
+    drivable_connector,
+    smooth_curve,
+    wrap_angle,
+)
 from .rndf import Boundary, Lane, RoadNetwork
 
 # 12 ft, the common lane width of the DARPA files, where a lane gives none.
@@ -93,6 +104,12 @@ class GraphParams:
     # below 1 m the file's geometry is off (VAIL's 12.2.3 -> 5.1.1 turns 90 deg within 4.5 m along its
     # heading; Cornell's Sample1 has exits that point backwards, i.e. cusps).
     warn_radius_m: float = 1.0
+    # The tightest curvature an RNDF exit's path may ask of the car where the waypoints leave room
+    # (path.drivable_connector); None keeps the least-energy connector everywhere. Default: the Passat
+    # at full lock (seed 000 Sec. 11.1: l = 2.72 m, delta_max = 30 deg), tan(30 deg) / 2.72 m. The
+    # least-energy curve of the sample mission's exit 11.1.4 -> 7.1.11 turns on 2.9 m; the car, on
+    # 4.7 m at most, ran 0.87 m wide of it (issue 5).
+    exit_max_curvature_1pm: float | None = math.tan(math.radians(30.0)) / 2.72
 
 
 @dataclass(eq=False)
@@ -363,11 +380,15 @@ def _lane_width(g: RoadGraph, v: WaypointId) -> float | None:
 def _exit_edge(g: RoadGraph, a: WaypointId, b: WaypointId, line: int) -> None:
     start = _free_pose(g, a, b, outgoing=True)
     end = _free_pose(g, b, a, outgoing=False)
-    path = connector(start, end, g.params.step_m)
     turn = abs(wrap_angle(end.heading_rad - start.heading_rad))
-    kmax = float(np.max(np.abs(path.curvature_1pm)))
     lane_to_lane = a.lane_id in g._lanes and b.lane_id in g._lanes
     uturn = lane_to_lane and a.segment == b.segment and a.lane != b.lane and turn > g.params.opposite_min_rad
+    limit = g.params.exit_max_curvature_1pm
+    if uturn or limit is None:  # a U-turn is a K-turn's business, not a curve's
+        path = connector(start, end, g.params.step_m)
+    else:
+        path = drivable_connector(start, end, limit, g.params.step_m)
+    kmax = float(np.max(np.abs(path.curvature_1pm)))
     widths = [w for w in (_lane_width(g, a), _lane_width(g, b)) if w is not None]
     if not uturn and kmax * g.params.warn_radius_m > 1.0:
         g.warnings.append(

@@ -548,6 +548,15 @@ _COARSE_BASIS = _uniform_basis(33)
 _SCALE_FACTORS = np.array([0.4, 0.6, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.0])
 
 
+# The wider search of `drivable_connector`: tangent lengths per end (in chord lengths), and run-ins on the
+# entry lane's line (metres before the entry; at most RUN_IN_MAX_FRACTION of the way along that line).
+_END_SCALE_FACTORS = np.array([0.3, 0.45, 0.6, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.0])
+_RUN_IN_M = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0])
+RUN_IN_MAX_FRACTION = 0.6
+SHARPNESS_MAX_1PM2 = 0.3
+_SEARCH_BASIS = _uniform_basis(25)
+
+
 def _evaluate(basis: FloatArray, data: FloatArray, scales: FloatArray) -> FloatArray:
     """Curve, first and second derivative for every tangent length: (3, len(scales), samples, 2).
 
@@ -599,3 +608,128 @@ def connector(
     # the end samples are the poses themselves, exactly (no rounding drift across joins)
     pos[0], pos[-1] = (x0, y0), (x1, y1)
     return _from_derivatives(pos, vel, acc)
+
+
+def _hermite_parts(start: Sequence[float], end: Sequence[float]) -> FloatArray:
+    """The quintic Hermite data of two poses split by what multiplies it: (5, 6, 2) for 1, L0, L1, L0^2,
+    L1^2 (L0, L1 the tangent lengths at the start and the end)."""
+    x0, y0, h0, k0 = start
+    x1, y1, h1, k1 = end
+    c0, s0, c1, s1 = math.cos(h0), math.sin(h0), math.cos(h1), math.sin(h1)
+    data = np.zeros((5, 6, 2))
+    data[0, 0], data[0, 5] = (x0, y0), (x1, y1)
+    data[1, 1] = (c0, s0)
+    data[2, 4] = (c1, s1)
+    data[3, 2] = (-k0 * s0, k0 * c0)
+    data[4, 3] = (-k1 * s1, k1 * c1)
+    return data
+
+
+def _asymmetric(basis: FloatArray, parts: FloatArray, l0: FloatArray, l1: FloatArray) -> FloatArray:
+    """Curve, first and second derivative for every pair (l0[i], l1[i]): (3, len(l0), samples, 2)."""
+    samples = basis.shape[1]
+    terms = (basis.reshape(-1, 6) @ parts.transpose(1, 0, 2).reshape(6, 10)).reshape(3, samples, 5, 2)
+    weights = np.stack((np.ones_like(l0), l0, l1, l0 * l0, l1 * l1), axis=1)  # (pairs, 5)
+    flat = weights @ terms.transpose(2, 0, 1, 3).reshape(5, -1)  # (pairs, 3 * samples * 2)
+    out: FloatArray = flat.reshape(len(l0), 3, samples, 2).transpose(1, 0, 2, 3)
+    return out
+
+
+def _bending(
+    pos: FloatArray, vel: FloatArray, acc: FloatArray, limit: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Per curve: peak |curvature|, bending energy (mean over u of k^2 ds/du), the curvature over
+    `limit` summed along the arc (mean over u of (|k| - limit)+ ds/du: the heading a car at `limit`
+    falls behind) and the peak sharpness |dk/ds| between samples."""
+    speed = np.hypot(vel[..., 0], vel[..., 1])
+    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        k = np.where(speed > 1e-9, cross / speed**3, np.inf)
+        energy = np.where(speed > 1e-9, cross**2 / speed**5, np.inf).mean(axis=-1)
+        excess = (np.maximum(np.abs(k) - limit, 0.0) * speed).mean(axis=-1)
+        ds = np.hypot(*np.moveaxis(np.diff(pos, axis=-2), -1, 0))
+        sharp = (np.abs(np.diff(k, axis=-1)) / ds).max(axis=-1)
+    return np.abs(k).max(axis=-1), energy, excess, np.nan_to_num(sharp, nan=np.inf)
+
+
+def _sharpness(path: Path) -> float:
+    return float(np.max(np.abs(np.diff(path.curvature_1pm)) / np.maximum(np.diff(path.s_m), 1e-9)))
+
+
+def _excess_of(path: Path, limit: float) -> float:
+    """The curvature over `limit` summed along `path` (1/m x m = rad)."""
+    over = np.maximum(np.abs(path.curvature_1pm) - limit, 0.0)
+    return float(np.sum(0.5 * (over[1:] + over[:-1]) * np.diff(path.s_m)))
+
+
+def drivable_connector(
+    start: PathPoint | Sequence[float],
+    end: PathPoint | Sequence[float],
+    max_curvature_1pm: float,
+    step_m: float = DEFAULT_STEP_M,
+) -> Path:
+    """`connector`, or where its peak |curvature| exceeds `max_curvature_1pm` (a car's full lock), the
+    curve of the wider search (module docstring) that keeps under it with the least bending energy, or
+    where none does, the one whose curvature over the limit sums to the least along its length (the
+    heading a car at full lock falls behind) without a sharper peak; `connector` stays if it is no
+    worse. The result starts at `start` and ends at `end` with their headings and curvatures; a run-in
+    is a straight piece on `end`'s line, curvature 0 at the join (lanes are straight at their first
+    waypoint to well within the limit), bending to `end`'s own curvature at `end`."""
+    if not (math.isfinite(max_curvature_1pm) and max_curvature_1pm > 0.0):
+        raise ValueError(f"max_curvature_1pm {max_curvature_1pm!r}: must be a positive number (1/m)")
+    plain = connector(start, end, step_m)
+    plain_peak = float(np.max(np.abs(plain.curvature_1pm)))
+    if len(plain) < 2 or plain_peak <= max_curvature_1pm:
+        return plain
+    a = tuple(float(v) for v in tuple(start)[:4])
+    b = tuple(float(v) for v in tuple(end)[:4])
+    # no ramp of curvature steeper than the plain curve's or SHARPNESS_MAX_1PM2 (a steering wheel turns
+    # at a finite rate: a near-instant ramp is a kink to the car)
+    sharp_max = max(_sharpness(plain), SHARPNESS_MAX_1PM2)
+    cb, sb = math.cos(b[2]), math.sin(b[2])
+    along_entry = (b[0] - a[0]) * cb + (b[1] - a[1]) * sb  # how far the entry lane's line runs from us
+    f0, f1 = (g.ravel() for g in np.meshgrid(_END_SCALE_FACTORS, _END_SCALE_FACTORS))
+    # (0: under the limit, by energy / 1: over it, by excess), then the curve: the least key wins
+    best: tuple[tuple[int, float], tuple[float, float, float, float], float, float] | None = None
+    for run_in in _RUN_IN_M:
+        if run_in > 0.0 and run_in > RUN_IN_MAX_FRACTION * along_entry:
+            break
+        join = (b[0] - run_in * cb, b[1] - run_in * sb, b[2], b[3] if run_in == 0.0 else 0.0)
+        chord = math.hypot(join[0] - a[0], join[1] - a[1])
+        if chord <= DUPLICATE_M:
+            continue
+        pos, vel, acc = _asymmetric(_SEARCH_BASIS, _hermite_parts(a, join), f0 * chord, f1 * chord)
+        peak, energy, excess, sharp = _bending(pos, vel, acc, max_curvature_1pm)
+        smooth = sharp <= sharp_max
+        ok = smooth & (peak <= max_curvature_1pm)
+        # under the limit: least energy; none under it: least excess, never a sharper peak than plain's
+        if ok.any():
+            i = int(np.argmin(np.where(ok, energy, np.inf)))
+        else:
+            i = int(np.argmin(np.where(smooth & (peak <= plain_peak), excess, np.inf)))
+        if not (math.isfinite(float(excess[i])) and smooth[i]) or float(peak[i]) > plain_peak:
+            continue
+        key = (0, float(energy[i])) if ok[i] else (1, float(excess[i]))
+        if best is None or key < best[0]:
+            best = (key, join, float(f0[i] * chord), float(f1[i] * chord))
+    if best is None:
+        return plain
+    (over, measure), join, l0, l1 = best
+    if over and measure >= _excess_of(plain, max_curvature_1pm):
+        return plain  # nothing steerable, and the least-energy curve asks no more than the rest
+    parts = _hermite_parts(a, join)
+    l0s, l1s = np.array([l0]), np.array([l1])
+    # unequal tangents make the parameter speed uneven: sample at even arc length, not even u
+    fine_u = np.linspace(0.0, 1.0, 257)
+    fine = _asymmetric(_basis(fine_u), parts, l0s, l1s)[0, 0]
+    fine_s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(fine, axis=0).T))))
+    n = max(2, math.ceil(float(fine_s[-1]) / step_m) + 1)
+    u = np.interp(np.linspace(0.0, float(fine_s[-1]), n), fine_s, fine_u)
+    u[0], u[-1] = 0.0, 1.0
+    pos, vel, acc = _asymmetric(_basis(u), parts, l0s, l1s)[:, 0]
+    pos[0], pos[-1] = a[:2], join[:2]
+    turn = _from_derivatives(pos, vel, acc)
+    if math.hypot(b[0] - join[0], b[1] - join[1]) <= DUPLICATE_M:
+        return turn
+    # the run-in: on end's line, from curvature 0 at the join to end's own (a Hermite, so both match)
+    return concat((turn, connector(join, b, step_m, scale_factors=(1.0,))))
