@@ -726,9 +726,7 @@ def drivable_connector(
             best = (key, join, float(f0[i] * chord), float(f1[i] * chord))
     if best is None:
         return plain
-    (over, measure), join, l0, l1 = best
-    if over and measure >= _excess_of(plain, max_curvature_1pm):
-        return plain  # nothing steerable, and the least-energy curve asks no more than the rest
+    join, l0, l1 = best[1:]
     parts = _hermite_parts(a, join)
     l0s, l1s = np.array([l0]), np.array([l1])
     # unequal tangents make the parameter speed uneven: sample at even arc length, not even u
@@ -741,7 +739,15 @@ def drivable_connector(
     pos, vel, acc = _asymmetric(_basis(u), parts, l0s, l1s)[:, 0]
     pos[0], pos[-1] = a[:2], join[:2]
     turn = _from_derivatives(pos, vel, acc)
-    if math.hypot(b[0] - join[0], b[1] - join[1]) <= DUPLICATE_M:
-        return turn
-    # the run-in: on end's line, from curvature 0 at the join to end's own (a Hermite, so both match)
-    return concat((turn, connector(join, b, step_m, scale_factors=(1.0,))))
+    if math.hypot(b[0] - join[0], b[1] - join[1]) > DUPLICATE_M:
+        # the run-in: on end's line, from curvature 0 at the join to end's own (a Hermite: both match)
+        turn = concat((turn, connector(join, b, step_m, scale_factors=(1.0,))))
+    # judged again on the final samples (the search saw 25 a curve): never a sharper peak than the plain
+    # curve, and where neither is steerable, strictly less to fall behind
+    peak = float(np.max(np.abs(turn.curvature_1pm)))
+    if peak > plain_peak or (
+        peak > max_curvature_1pm
+        and _excess_of(turn, max_curvature_1pm) >= _excess_of(plain, max_curvature_1pm)
+    ):
+        return plain
+    return turn
