@@ -744,9 +744,9 @@ def drivable_connector(
         turn = concat((turn, connector(join, b, step_m, scale_factors=(1.0,))))
     # judged again on the final samples (the search saw 25 a curve): never a sharper peak than the plain
     # curve, and where neither is steerable, strictly less to fall behind
-    peak = float(np.max(np.abs(turn.curvature_1pm)))
-    if peak > plain_peak or (
-        peak > max_curvature_1pm
+    turn_peak = float(np.max(np.abs(turn.curvature_1pm)))
+    if turn_peak > plain_peak or (
+        turn_peak > max_curvature_1pm
         and _excess_of(turn, max_curvature_1pm) >= _excess_of(plain, max_curvature_1pm)
     ):
         return plain
