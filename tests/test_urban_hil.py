@@ -25,6 +25,15 @@ def _run_hil(doc: dict[str, Any], tmp_path: Path, timeout_s: float = 400.0) -> d
     return result
 
 
+def _sample_mission(name: str) -> dict[str, Any]:
+    """The shipped sample mission's scenario document under another name (skips without the shared data)."""
+    if not (shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt").is_file():
+        pytest.skip(f"DARPA sample RNDF not found at {shared_data_dir() / 'rndf' / 'darpa_sample'}")
+    doc: dict[str, Any] = yaml.safe_load(builtin_scenarios()["darpa_sample_mission"].read_text())
+    doc["name"] = name
+    return doc
+
+
 def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
     path = builtin_scenarios()["four_way_stop_1"]
     doc = yaml.safe_load(path.read_text())
@@ -48,10 +57,7 @@ def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
 
 @pytest.mark.slow  # 90 s of driving; the default run's urban HIL test is the four-way stop
 def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> None:
-    if not (shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt").is_file():
-        pytest.skip(f"DARPA sample RNDF not found at {shared_data_dir() / 'rndf' / 'darpa_sample'}")
-    doc = yaml.safe_load(builtin_scenarios()["darpa_sample_mission"].read_text())
-    doc["name"] = "darpa_sample_mission_hil"
+    doc = _sample_mission("darpa_sample_mission_hil")
     doc["duration_s"] = 90.0
     doc["checks"] = [c for c in doc["checks"] if c["metric"] not in ("checkpoints_reached", "time_s")]
     doc["checks"].append({"name": "first checkpoints", "metric": "checkpoints_reached", "min": 2})
@@ -64,10 +70,7 @@ def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> N
 
 @pytest.mark.slow  # ~33 min of wall time: the whole mission, every check of the scenario
 def test_darpa_sample_mission_whole_in_three_processes(tmp_path: Path) -> None:
-    if not (shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt").is_file():
-        pytest.skip(f"DARPA sample RNDF not found at {shared_data_dir() / 'rndf' / 'darpa_sample'}")
-    doc = yaml.safe_load(builtin_scenarios()["darpa_sample_mission"].read_text())
-    doc["name"] = "darpa_sample_mission_hil_whole"
+    doc = _sample_mission("darpa_sample_mission_hil_whole")
     result = _run_hil(doc, tmp_path, timeout_s=float(doc["duration_s"]) + 600.0)
     assert result["verdict"] == "pass", [c for c in result["checks"] if not c["passed"]]
     m = result["metrics"]

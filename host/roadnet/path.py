@@ -569,16 +569,26 @@ SHARPNESS_MAX_1PM2 = 0.3
 _SEARCH_BASIS = _uniform_basis(25)
 
 
-def _evaluate(basis: FloatArray, data: FloatArray, scales: FloatArray) -> FloatArray:
-    """Curve, first and second derivative for every tangent length: (3, len(scales), samples, 2).
+def _hermite_parts(start: Sequence[float], end: Sequence[float]) -> FloatArray:
+    """The quintic Hermite data of two poses split by what multiplies it: (5, 6, 2) for 1, L0, L1, L0^2,
+    L1^2 (L0, L1 the tangent lengths at the start and the end)."""
+    x0, y0, h0, k0 = start
+    x1, y1, h1, k1 = end
+    c0, s0, c1, s1 = math.cos(h0), math.sin(h0), math.cos(h1), math.sin(h1)
+    data = np.zeros((5, 6, 2))
+    data[0, 0], data[0, 5] = (x0, y0), (x1, y1)  # positions
+    data[1, 1], data[2, 4] = (c0, s0), (c1, s1)  # unit tangents (times L0, L1)
+    data[3, 2], data[4, 3] = (-k0 * s0, k0 * c0), (-k1 * s1, k1 * c1)  # k n, n the left normal (L0^2, L1^2)
+    return data
 
-    The Hermite data is linear in the poses, in L (tangents) and in L^2 (curvature terms): `data` holds
-    the three parts (3, 6, 2), weighted 1, L, L^2.
-    """
+
+def _asymmetric(basis: FloatArray, parts: FloatArray, l0: FloatArray, l1: FloatArray) -> FloatArray:
+    """Curve, first and second derivative for every pair (l0[i], l1[i]): (3, len(l0), samples, 2)."""
     samples = basis.shape[1]
-    parts = (basis.reshape(-1, 6) @ data.transpose(1, 0, 2).reshape(6, 6)).reshape(3, 1, samples, 3, 2)
-    lin = scales[None, :, None, None]
-    out: FloatArray = parts[..., 0, :] + lin * parts[..., 1, :] + (lin * lin) * parts[..., 2, :]
+    terms = (basis.reshape(-1, 6) @ parts.transpose(1, 0, 2).reshape(6, 10)).reshape(3, samples, 5, 2)
+    weights = np.stack((np.ones_like(l0), l0, l1, l0 * l0, l1 * l1), axis=1)  # (pairs, 5)
+    flat = weights @ terms.transpose(2, 0, 1, 3).reshape(5, -1)  # (pairs, 3 * samples * 2)
+    out: FloatArray = flat.reshape(len(l0), 3, samples, 2).transpose(1, 0, 2, 3)
     return out
 
 
@@ -599,51 +609,28 @@ def connector(
     chord = math.hypot(x1 - x0, y1 - y0)
     if chord <= DUPLICATE_M:
         return Path.point(x0, y0, h0, k0)
-    c0, s0, c1, s1 = math.cos(h0), math.sin(h0), math.cos(h1), math.sin(h1)
-    data = np.zeros((3, 6, 2))
-    data[0, 0], data[0, 5] = (x0, y0), (x1, y1)  # positions
-    data[1, 1], data[1, 4] = (c0, s0), (c1, s1)  # unit tangents (times L)
-    data[2, 2], data[2, 3] = (-k0 * s0, k0 * c0), (-k1 * s1, k1 * c1)  # k n, n the left normal (times L^2)
+    parts = _hermite_parts((x0, y0, h0, k0), (x1, y1, h1, k1))
     scales = (
         _SCALE_FACTORS if scale_factors is None else np.asarray(scale_factors, dtype=np.float64)
     ) * chord
-    pos, vel, acc = _evaluate(_COARSE_BASIS, data, scales)
-    speed = np.hypot(vel[..., 0], vel[..., 1])
-    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
-    # bending energy  int k^2 ds = int cross^2 / |v|^5 du; a cusp (|v| -> 0) makes it explode
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        energy = np.where(speed > 1e-9, cross**2 / speed**5, np.inf).mean(axis=1)
-    best = int(np.argmin(energy))
+    pos, vel, acc = _asymmetric(_COARSE_BASIS, parts, scales, scales)
+    best = int(np.argmin(_energy(vel, acc)))
     approx_len = float(np.sum(np.hypot(*np.diff(pos[best], axis=0).T)))
     n = max(2, math.ceil(approx_len / step_m) + 1)
-    pos, vel, acc = _evaluate(_uniform_basis(n), data, scales[best : best + 1])[:, 0]
+    one = scales[best : best + 1]
+    pos, vel, acc = _asymmetric(_uniform_basis(n), parts, one, one)[:, 0]
     # the end samples are the poses themselves, exactly (no rounding drift across joins)
     pos[0], pos[-1] = (x0, y0), (x1, y1)
     return _from_derivatives(pos, vel, acc)
 
 
-def _hermite_parts(start: Sequence[float], end: Sequence[float]) -> FloatArray:
-    """The quintic Hermite data of two poses split by what multiplies it: (5, 6, 2) for 1, L0, L1, L0^2,
-    L1^2 (L0, L1 the tangent lengths at the start and the end)."""
-    x0, y0, h0, k0 = start
-    x1, y1, h1, k1 = end
-    c0, s0, c1, s1 = math.cos(h0), math.sin(h0), math.cos(h1), math.sin(h1)
-    data = np.zeros((5, 6, 2))
-    data[0, 0], data[0, 5] = (x0, y0), (x1, y1)
-    data[1, 1] = (c0, s0)
-    data[2, 4] = (c1, s1)
-    data[3, 2] = (-k0 * s0, k0 * c0)
-    data[4, 3] = (-k1 * s1, k1 * c1)
-    return data
-
-
-def _asymmetric(basis: FloatArray, parts: FloatArray, l0: FloatArray, l1: FloatArray) -> FloatArray:
-    """Curve, first and second derivative for every pair (l0[i], l1[i]): (3, len(l0), samples, 2)."""
-    samples = basis.shape[1]
-    terms = (basis.reshape(-1, 6) @ parts.transpose(1, 0, 2).reshape(6, 10)).reshape(3, samples, 5, 2)
-    weights = np.stack((np.ones_like(l0), l0, l1, l0 * l0, l1 * l1), axis=1)  # (pairs, 5)
-    flat = weights @ terms.transpose(2, 0, 1, 3).reshape(5, -1)  # (pairs, 3 * samples * 2)
-    out: FloatArray = flat.reshape(len(l0), 3, samples, 2).transpose(1, 0, 2, 3)
+def _energy(vel: FloatArray, acc: FloatArray) -> FloatArray:
+    """Bending energy per curve, int k^2 ds = mean over u of cross^2 / |P'|^5; a cusp (|P'| -> 0) makes
+    it explode."""
+    speed = np.hypot(vel[..., 0], vel[..., 1])
+    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out: FloatArray = np.where(speed > 1e-9, cross**2 / speed**5, np.inf).mean(axis=-1)
     return out
 
 
@@ -655,9 +642,9 @@ def _bending(
     falls behind) and the peak sharpness |dk/ds| between samples."""
     speed = np.hypot(vel[..., 0], vel[..., 1])
     cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+    energy = _energy(vel, acc)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         k = np.where(speed > 1e-9, cross / speed**3, np.inf)
-        energy = np.where(speed > 1e-9, cross**2 / speed**5, np.inf).mean(axis=-1)
         excess = (np.maximum(np.abs(k) - limit, 0.0) * speed).mean(axis=-1)
         ds = np.hypot(*np.moveaxis(np.diff(pos, axis=-2), -1, 0))
         sharp = (np.abs(np.diff(k, axis=-1)) / ds).max(axis=-1)
