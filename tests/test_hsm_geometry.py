@@ -238,6 +238,9 @@ def _sit(t: float = 0.0, **over: object) -> Situation:
     [
         (_sit(float("nan")), r"Situation.t_s = nan"),
         (_sit(ego=EgoState(float("inf"), 0.0, 0.0, 0.0)), r"Situation.ego.x_m = inf"),
+        # finite but off the map: 1e300 m overflowed the lane index's kd-tree (found by the fuzz test below)
+        (_sit(ego=EgoState(8.0, 1e300, 0.0, 1.0)), r"Situation.ego.y_m = 1e\+300: beyond"),
+        (_sit(objects=(TrackedObject("a", -2e7, 0, 0, 1, 4, 2),)), r"objects\[0\] \('a'\).x_m = -2"),
         (_sit(objects=(TrackedObject("a", 0, 0, 0, -1.0, 4, 2),)), r"objects\[0\] \('a'\).speed_mps = -1.0"),
         (_sit(objects=(TrackedObject("a", 0, 0, 0, 1.0, 0.0, 2),)), r"objects\[0\] \('a'\).length_m = 0.0"),
         (

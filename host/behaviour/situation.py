@@ -156,7 +156,8 @@ class Situation:
         _finite("Situation.t_s", self.t_s)
         if not isinstance(self.ego, EgoState):
             raise ValueError(f"Situation.ego: expected an EgoState, got {type(self.ego).__name__}")
-        for name in ("x_m", "y_m", "heading_rad", "speed_mps", "accel_mps2"):
+        _position("Situation.ego", self.ego.x_m, self.ego.y_m)
+        for name in ("heading_rad", "speed_mps", "accel_mps2"):
             _finite(f"Situation.ego.{name}", getattr(self.ego, name))
         if not isinstance(self.estop, EStop):
             raise ValueError(f"Situation.estop = {self.estop!r}: expected one of {[e.value for e in EStop]}")
@@ -172,8 +173,8 @@ class Situation:
             if obj.object_id in seen:
                 raise ValueError(f"{where}.object_id: listed twice in one situation")
             seen.add(obj.object_id)
-            for name in ("x_m", "y_m", "heading_rad"):
-                _finite(f"{where}.{name}", getattr(obj, name))
+            _position(where, obj.x_m, obj.y_m)
+            _finite(f"{where}.heading_rad", obj.heading_rad)
             if not (math.isfinite(obj.speed_mps) and obj.speed_mps >= 0.0):
                 raise ValueError(
                     f"{where}.speed_mps = {obj.speed_mps}: must be finite and >= 0 along the heading "
@@ -187,8 +188,7 @@ class Situation:
                 _finite(f"{where}.lane.s_m", obj.lane.s_m)
                 _finite(f"{where}.lane.lateral_m", obj.lane.lateral_m)
         for i, b in enumerate(self.blocked):
-            _finite(f"Situation.blocked[{i}].x_m", b.x_m)
-            _finite(f"Situation.blocked[{i}].y_m", b.y_m)
+            _position(f"Situation.blocked[{i}]", b.x_m, b.y_m)
         if self.progress is not None:
             _finite("Situation.progress.s_m", self.progress.s_m)
             _finite("Situation.progress.lateral_m", self.progress.lateral_m)
@@ -197,6 +197,20 @@ class Situation:
 def _finite(name: str, value: float) -> None:
     if not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ValueError(f"{name} = {value!r}: must be a finite number")
+
+
+# Positions are metres in the network's local frame; one farther out than a quarter of the Earth's
+# circumference is no place on the map (and 1e300 m overflowed the lane index's kd-tree query).
+MAX_COORDINATE_M = 1.0e7
+
+
+def _position(where: str, x_m: float, y_m: float) -> None:
+    for name, value in (("x_m", x_m), ("y_m", y_m)):
+        _finite(f"{where}.{name}", value)
+        if abs(value) > MAX_COORDINATE_M:
+            raise ValueError(
+                f"{where}.{name} = {value!r}: beyond {MAX_COORDINATE_M:g} m from the local frame's origin"
+            )
 
 
 def match_objects(index: LaneIndex, objects: Iterable[TrackedObject]) -> tuple[TrackedObject, ...]:
