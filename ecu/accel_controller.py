@@ -107,10 +107,9 @@ class PedalMode(IntEnum):
 _NONE, _THROTTLE, _BRAKE, _HOLD = PedalMode.NONE, PedalMode.THROTTLE, PedalMode.BRAKE, PedalMode.HOLD
 
 
-@fast_frozen_init
-@dataclass(frozen=True, slots=True)
-class ControllerState:
-    """The longitudinal loop's memory between cycles."""
+class ControllerState(NamedTuple):
+    """The longitudinal loop's memory between cycles (a NamedTuple: built every millisecond, see
+    core.ActuatorCommand)."""
 
     t_s: float  # time of the last step
     accel_target_mps2: float  # jerk-limited target
