@@ -2,6 +2,9 @@
 
     python benchmarks/run.py [--quick] [--json FILE] [--with-hil SECONDS]
 
+`sil_spine` (not with --quick) runs every spine scenario whole in SIL and reports the slowest
+against issue 2's 20x target.
+
 Each benchmark prints median / p99 / max and its ratio to a baseline measured right beside it,
 because these machines are shared and noisy: an absolute figure from another day means little,
 a ratio from the same minute means more. Pass/fail targets are not asserted here; the README
@@ -147,6 +150,56 @@ def bench_sil(seconds: float) -> dict[str, Any]:
     }
 
 
+# The issue 2 contract's scenarios and the demo: the SIL speed target is about all of them.
+SPINE_SCENARIOS = (
+    "accel_steps",
+    "grade",
+    "estop_pause",
+    "estop_disable",
+    "driver_brake",
+    "heartbeat_loss",
+    "host_freeze",
+    "corrupt_frames",
+    "bad_calibration",
+    "demo",
+)
+
+
+def bench_sil_spine(names: tuple[str, ...] = SPINE_SCENARIOS) -> dict[str, Any]:
+    """Every spine scenario whole in SIL: its real-time factor, the slowest against the 20x target,
+    with the FMU stepped alone at 1 kHz before and after as the machine's baseline."""
+    from bywire.hil.scenario import load_scenario
+    from bywire.hil.sil import run_sil
+    from bywire.vehicle_models.fmu_vehicle import VehicleInputs, open_vehicle
+
+    def fmu_alone_rtf(seconds: float = 5.0) -> float:
+        vehicle = open_vehicle("passat", start_values={"v0_mps": 10.0})
+        inputs = VehicleInputs(throttle_pct=20.0)
+        t0 = time.perf_counter()
+        for _ in range(int(seconds * 1000)):
+            vehicle.step(0.001, inputs)
+        wall = time.perf_counter() - t0
+        vehicle.close()
+        return round(seconds / wall, 1)
+
+    before = fmu_alone_rtf()
+    rtf: dict[str, float] = {}
+    for name in names:
+        result = run_sil(load_scenario(name))
+        rtf[name] = float(result.extra["real_time_factor"])
+    after = fmu_alone_rtf()
+    slowest = min(rtf, key=rtf.__getitem__)
+    return {
+        "real_time_factor": rtf,
+        "median": round(statistics.median(rtf.values()), 2),
+        "slowest": slowest,
+        "min": rtf[slowest],
+        "target": 20.0,
+        "ratio_min_to_target": round(rtf[slowest] / 20.0, 2),
+        "baseline_fmu_alone_real_time_factor": {"before": before, "after": after},
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
@@ -164,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         ("ecu_core_step", lambda: bench_core_step(n)),
         ("vehicle_can_codec", lambda: bench_codec(n)),
         ("sil", lambda: bench_sil(2.0 if args.quick else 10.0)),
+        *((("sil_spine", bench_sil_spine),) if not args.quick else ()),
     ):
         print(f"== {name}", flush=True)
         results[name] = fn()
