@@ -113,7 +113,9 @@ def test_any_value_gives_the_general_bits_or_is_left_to_the_general_path(
 
 @SETTINGS
 @given(st.sampled_from(MESSAGES), st.data())
-def test_unpack_gives_the_general_frame_or_leaves_the_error_to_it(info: MessageInfo, data: st.DataObject) -> None:
+def test_unpack_gives_the_general_frame_or_leaves_the_error_to_it(
+    info: MessageInfo, data: st.DataObject
+) -> None:
     payload = data.draw(st.integers(0, (1 << (8 * info.length)) - 1))
     fast = PACKERS[info.frame_id].unpack(payload)
     try:
