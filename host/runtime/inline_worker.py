@@ -13,15 +13,29 @@ worker then stays busy for ever from the release on, exactly as a hung thread wo
 supervisor finds it at `hang_after_s` on the simulated clock and classifies it from the sampled
 share. What SIL cannot show this way is a hang's cost to the rest of the process (a spinning thread
 taking the GIL); wall-time runs use thread workers, where it is real.
+
+Time taken from the step by others is not the step's. Lockstep runs on a simulated clock, and a
+run must come out the same on a busy machine: a step that never blocked (no voluntary context
+switch, `getrusage(RUSAGE_THREAD)`) but lost the CPU to another process or to the hypervisor (VM
+steal) is charged its own CPU time (`time.thread_time`) for the deadline, not the wall time it
+waited; a step that slept, waited on I/O or on a lock is charged the wall time, as before. For
+the same reason the watchdog judges a late step only once it is asleep (blocked: a deadlock or an
+endless wait) or has had the timeout's worth of CPU (spinning: a hang); a thread that is runnable
+but has not had that much CPU was starved, not stuck, and is watched on. A CPU-bound step that is
+really too slow still misses on its own CPU time. One limit: a voluntary switch is a voluntary
+switch, and the GIL handed to the watchdog thread (it wakes every `POLL_S`) during a long step is
+one, so such a step is charged its wall time as before.
 """
 
 from __future__ import annotations
 
 import contextlib
+import resource
 import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -58,7 +72,8 @@ class _Watchdog:
     def __init__(self) -> None:
         self.main_ident = threading.main_thread().ident
         self.main_native = threading.get_native_id()
-        self.armed: tuple[float, float, InlineWorker] | None = None  # (wall start, timeout, worker)
+        # (wall start, timeout, worker, the main thread's CPU time at the start) of the step running
+        self.armed: tuple[float, float, InlineWorker, float] | None = None
         self.firing = False
         previous = signal.getsignal(INTERRUPT_SIGNAL)
         if previous not in (signal.SIG_DFL, signal.SIG_IGN, None):
@@ -84,6 +99,8 @@ class _Watchdog:
             if armed is None or time.perf_counter() - armed[0] < armed[1]:
                 continue
             worker = armed[2]
+            if self._starved(armed[3], armed[1]):
+                continue
             wall0, cpu0 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
             time.sleep(SHARE_SAMPLE_S)  # may take longer: a spinning step holds the GIL
             wall1, cpu1 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
@@ -94,6 +111,15 @@ class _Watchdog:
             self.firing = True
             assert self.main_ident is not None
             signal.pthread_kill(self.main_ident, INTERRUPT_SIGNAL)
+
+    def _starved(self, step_cpu0_s: float, timeout_s: float) -> bool:
+        """Late on the wall clock, yet runnable and short of the timeout's worth of CPU: the step
+        was kept off the CPU (another process, VM steal; then the GIL, which the starved step held),
+        it is not stuck. A spinning step gets there on its own CPU time; a blocked one sleeps."""
+        cpu = task_cpu_time_s("self", self.main_native)
+        return (
+            cpu is not None and cpu - step_cpu0_s < timeout_s and task_state("self", self.main_native) == "R"
+        )
 
 
 class InlineWorker(WorkerState):
@@ -124,8 +150,9 @@ class InlineWorker(WorkerState):
         except BaseException as exc:
             self._fail("exception", exc, "start")
 
-    def _guarded(self, fn: Callable[[], Any]) -> Any:
-        self._watchdog.armed = (time.perf_counter(), self._timeout_s, self)
+    def _guarded(self, fn: Callable[[], Any], cpu0_s: float | None = None) -> Any:
+        cpu0 = time.thread_time() if cpu0_s is None else cpu0_s
+        self._watchdog.armed = (time.perf_counter(), self._timeout_s, self, cpu0)
         try:
             return fn()
         finally:
@@ -144,6 +171,8 @@ class InlineWorker(WorkerState):
         self.stats.releases += 1
         self.stats.last_release_s = now_s
         published_before = self.ctx.published
+        switches0 = _voluntary_switches()
+        cpu0 = time.thread_time()
         wall0 = time.perf_counter()
 
         def step() -> None:
@@ -152,7 +181,7 @@ class InlineWorker(WorkerState):
             module.step(self.ctx)
 
         try:
-            self._guarded(step)
+            self._guarded(step, cpu0)
         except StepInterrupted:
             self.ctx.fenced = True
             return True  # busy from now on, like a thread that never came back
@@ -165,7 +194,7 @@ class InlineWorker(WorkerState):
             self.stats,
             self.busy_since_s,
             self._clock.now(),
-            time.perf_counter() - wall0,
+            charged_time_s(time.perf_counter() - wall0, cpu0, switches0, self.spec.deadline_s),
             self.ctx.published != published_before,
         )
         self.busy_since_s = None
@@ -191,6 +220,33 @@ class InlineWorker(WorkerState):
         if self._module is not None and self.failure is None and self.busy_since_s is None:
             with contextlib.suppress(BaseException):  # a failing close of a retired instance changes nothing
                 self._guarded(self._module.close)
+
+
+def _voluntary_switches() -> int:
+    """Times the calling thread gave up the CPU itself (sleep, I/O, a lock, the GIL)."""
+    return resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw
+
+
+def charged_time_s(wall_s: float, cpu0_s: float, switches0: int, deadline_s: float) -> float:
+    """The execution time a step that took `wall_s` is judged by (see the module docstring): its
+    wall time, unless that is over the deadline while the step never blocked, in which case only
+    the CPU time it got (`time.thread_time()` since `cpu0_s`) was its own. Call it on the step's
+    thread right after the step; `switches0` is `_voluntary_switches()` from before it."""
+    if wall_s <= deadline_s:
+        return wall_s  # on time: nothing to ask (and two system calls saved)
+    if _voluntary_switches() != switches0:
+        return wall_s  # it waited for something itself
+    return min(wall_s, time.thread_time() - cpu0_s)
+
+
+def task_state(pid: str | int, tid: int) -> str | None:
+    """The scheduler state letter of a thread (R runnable, S sleeping, D uninterruptible, ...), from
+    /proc/PID/task/TID/stat; None where it cannot be read."""
+    try:
+        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+        return stat[stat.rindex(")") + 2]  # the command name in parentheses may hold anything
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _start(factory: ModuleFactory, ctx: ModuleContext) -> Module:
