@@ -23,6 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bywire.hil.scenario import CONTRACT_SCENARIOS
+
 
 def distribution(samples_s: list[float]) -> dict[str, float]:
     us = sorted(s * 1e6 for s in samples_s)
@@ -151,18 +153,7 @@ def bench_sil(seconds: float) -> dict[str, Any]:
 
 
 # The issue 2 contract's scenarios and the demo: the SIL speed target is about all of them.
-SPINE_SCENARIOS = (
-    "accel_steps",
-    "grade",
-    "estop_pause",
-    "estop_disable",
-    "driver_brake",
-    "heartbeat_loss",
-    "host_freeze",
-    "corrupt_frames",
-    "bad_calibration",
-    "demo",
-)
+SPINE_SCENARIOS = (*CONTRACT_SCENARIOS, "demo")
 
 
 def bench_sil_spine(names: tuple[str, ...] = SPINE_SCENARIOS) -> dict[str, Any]:

@@ -367,6 +367,21 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     )
 
 
+# The scenarios issue 2's contract names, runnable by bare name: the tests run each, the benchmarks
+# time each.
+CONTRACT_SCENARIOS = (
+    "accel_steps",
+    "grade",
+    "estop_pause",
+    "estop_disable",
+    "driver_brake",
+    "heartbeat_loss",
+    "host_freeze",
+    "corrupt_frames",
+    "bad_calibration",
+)
+
+
 def builtin_scenarios() -> dict[str, Path]:
     """Scenarios shipped in hil/scenarios/, by bare name."""
     folder = resources.files("bywire.hil") / "scenarios"

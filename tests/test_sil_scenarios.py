@@ -16,20 +16,9 @@ import pytest
 import yaml
 
 from bywire.hil.run import run_scenario
-from bywire.hil.scenario import builtin_scenarios, load_scenario
+from bywire.hil.scenario import CONTRACT_SCENARIOS, builtin_scenarios, load_scenario
 from bywire.hil.sil import run_sil
 
-CONTRACT_SCENARIOS = (
-    "accel_steps",
-    "grade",
-    "estop_pause",
-    "estop_disable",
-    "driver_brake",
-    "heartbeat_loss",
-    "host_freeze",
-    "corrupt_frames",
-    "bad_calibration",
-)
 FAULT_SCENARIOS = (
     "estop_pause",
     "estop_disable",

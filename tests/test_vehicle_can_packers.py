@@ -67,6 +67,12 @@ def message_and_values(draw: st.DrawFn, plain: bool) -> tuple[MessageInfo, dict[
     return info, {sig.field: draw(pick(sig)) for sig in info.signals}
 
 
+def generated(info: MessageInfo, frame: Any, saturate: bool) -> int | None:
+    """The generated packer's payload, or None where it leaves the frame to the general path."""
+    packers = PACKERS[info.frame_id]
+    return (packers.pack_saturating if saturate else packers.pack)(frame, 5 << COUNTER_START_BIT)
+
+
 def general(info: MessageInfo, frame: Any, saturate: bool) -> int | str:
     """The general path's payload, or its error's type and message."""
     try:
@@ -82,8 +88,7 @@ def test_plain_frames_take_the_generated_path_with_the_general_bits(
 ) -> None:
     info, values = mv
     frame = build(info, values)
-    packers = PACKERS[info.frame_id]
-    fast = (packers.pack_saturating if saturate else packers.pack)(frame, 5 << COUNTER_START_BIT)
+    fast = generated(info, frame, saturate)
     assert fast is not None, f"{info.name}: the generated packer declined a plain frame {frame}"
     assert fast == general(info, frame, saturate)
 
@@ -95,8 +100,7 @@ def test_any_value_gives_the_general_bits_or_is_left_to_the_general_path(
 ) -> None:
     info, values = mv
     frame = build(info, values)
-    packers = PACKERS[info.frame_id]
-    fast = (packers.pack_saturating if saturate else packers.pack)(frame, 5 << COUNTER_START_BIT)
+    fast = generated(info, frame, saturate)
     reference = general(info, frame, saturate)
     if fast is not None:
         assert fast == reference
