@@ -35,7 +35,6 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -48,6 +47,7 @@ from bywire.host.runtime.worker import (
     WorkerState,
     complete_on_record,
     task_cpu_time_s,
+    task_state,
 )
 
 POLL_S = 0.05
@@ -237,16 +237,6 @@ def charged_time_s(wall_s: float, cpu0_s: float, switches0: int, deadline_s: flo
     if _voluntary_switches() != switches0:
         return wall_s  # it waited for something itself
     return min(wall_s, time.thread_time() - cpu0_s)
-
-
-def task_state(pid: str | int, tid: int) -> str | None:
-    """The scheduler state letter of a thread (R runnable, S sleeping, D uninterruptible, ...), from
-    /proc/PID/task/TID/stat; None where it cannot be read."""
-    try:
-        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
-        return stat[stat.rindex(")") + 2]  # the command name in parentheses may hold anything
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def _start(factory: ModuleFactory, ctx: ModuleContext) -> Module:

@@ -109,6 +109,16 @@ def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
         return None
 
 
+def task_state(pid: str | int, tid: int) -> str | None:
+    """The scheduler state letter of a thread (R runnable, S sleeping, D uninterruptible, ...), from
+    /proc/PID/task/TID/stat; None where it cannot be read."""
+    try:
+        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+        return stat[stat.rindex(")") + 2]  # the command name in parentheses may hold anything
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 MODULE_PRIORITY_BELOW = 2  # real-time priority steps between the scheduler thread and its modules
 
 
