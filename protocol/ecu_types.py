@@ -37,14 +37,21 @@ class Fault(IntFlag):
     REQUEST_INVALID = 1 << 9  # host request PDO stale, out of range or with a bad alive counter
     HOST_STOP_REQUEST = 1 << 10  # the host itself asked for a controlled stop (supervisor)
     GEAR_TIMEOUT = 1 << 11  # a requested gear was not reported engaged within the shift timeout
+    # The ECU's own health (DESIGN section 4: a longer stall is never judged safer than a shorter one)
+    LOOP_STALL = 1 << 12  # two ECU cycles further apart than the firmware's bound (ecu.app)
+    INTERNAL_ERROR = 1 << 13  # an exception inside a cycle: the command came from the fallback
+    TX_GUARD = 1 << 14  # the transmit guard replaced a command that broke a limit (ecu.tx_guard)
 
 
 class RequestFlags(IntFlag):
     """Bits of the host's request PDO."""
 
     NONE = 0
-    ENGAGE = 1 << 0  # the host wants the ECU to close its requests (level, not edge)
-    REARM = 1 << 1  # clear latched SAFE_STOP / MANUAL once the cause is gone (rising edge)
+    # The host wants the ECU to close its requests. READY -> ENGAGED needs this flag to RISE (an edge
+    # between two accepted requests) while every precondition holds; ENGAGED and a PAUSE that began
+    # ENGAGED need it held (dropping it asks for a controlled stop).
+    ENGAGE = 1 << 0
+    REARM = 1 << 1  # clear a latched SAFE_STOP at standstill once the cause is gone (rising edge)
     STOP = 1 << 2  # controlled stop and hold requested by the host
     STEER = 1 << 3  # the steering request is valid
     # Drive in reverse. The request's accel_mps2 stays along the direction of travel of the selected

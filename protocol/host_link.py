@@ -147,7 +147,7 @@ _F = TypeVar("_F", bound=IntFlag)
 
 # Every status and request converts its state and flag integers; calling an enum class costs
 # microseconds of enum machinery. Valid values are looked up in these tables first (filled on
-# first use, bounded by the number of valid values: 2**11 fault combinations at most); anything
+# first use, bounded by the number of valid values: 2**15 fault combinations at most); anything
 # else takes the checked path below.
 _FLAG_MEMBERS: dict[type, dict[int, IntFlag]] = {}
 _KNOWN_BITS: dict[type, int] = {}
@@ -361,6 +361,9 @@ EMCY_CODE_BY_FAULT: dict[Fault, int] = {
     Fault.REQUEST_INVALID: 0x8250,  # RPDO timeout / not processed
     Fault.HOST_STOP_REQUEST: 0xFF02,
     Fault.GEAR_TIMEOUT: 0xFF03,  # the gateway never confirmed a requested gear
+    Fault.LOOP_STALL: 0x6100,  # internal software: the cyclic executive stalled
+    Fault.INTERNAL_ERROR: 0x6000,  # device software, generic: an exception inside a cycle
+    Fault.TX_GUARD: 0xFF04,  # the transmit guard replaced an unsafe command
 }
 EMCY_ERROR_RESET = 0x0000
 

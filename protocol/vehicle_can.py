@@ -134,11 +134,13 @@ class Motion:
 
 @dataclass(frozen=True, slots=True)
 class DriverInputs:
-    """GW_Driver (0x122): the driver's pedals, for driver-intervention detection."""
+    """GW_Driver (0x122): the driver's pedals, for driver-intervention detection, and the safety
+    driver's arm button (the human act that re-arms the ECU after DISABLE or MANUAL)."""
 
     brake_pedal_pressed: bool
     throttle_pedal_pct: float
     brake_pedal_pct: float
+    safety_arm: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -229,6 +231,7 @@ _LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
             _flag("brake_pedal_pressed", "BrakePedalPressed"),
             _num("throttle_pedal_pct", "ThrottlePedalDriver", "%"),
             _num("brake_pedal_pct", "BrakePedalDriver", "%"),
+            _flag("safety_arm", "SafetyArm"),
         ),
     ),
     SteerReport: (

@@ -20,14 +20,14 @@ from hypothesis import strategies as st
 
 from bywire.clock import SimClock
 from bywire.protocol.canopen_node import MAX_COUNTER_DELTA, EcuNode, HostMaster, NmtCommand
-from bywire.protocol.ecu_types import RequestFlags
+from bywire.protocol.ecu_types import Fault, RequestFlags
 from bywire.protocol.host_link import EcuStatus, HostRequest
 from bywire.protocol.udp_bus import MalformedDatagram, UdpCanBus, decode_datagram, encode_datagram
 
 RPDO1, HOST_HB, ECU_HB, EMCY, NMT, SDO_RX = 0x210, 0x701, 0x710, 0x090, 0x000, 0x610
 TPDO_LENGTHS = {0x190: 8, 0x290: 8, 0x390: 8}
 HB_STATES = {0, 4, 5, 127}
-FAULT_BITS = 0xFFF
+FAULT_BITS = sum(int(f) for f in Fault)  # every bit the protocol defines
 # Bus-level examples cost a few ms each (virtual bus, EcuNode/HostMaster pumps); pure ones are cheap.
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FUZZ_PURE = settings(max_examples=300, deadline=None)
