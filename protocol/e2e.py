@@ -15,8 +15,10 @@ E2E profile 1 (SWS E2ELibrary):
 - Deviation: no SyncCounter phase. `check_counter`: delta 0 is a repeat, 1 is in order, 2..max_delta is
   in order with frames lost, anything else is out of order (a jump back, or too many frames lost to
   tell); the reference counter moves only with accepted frames. After a receive timeout the receiver
-  accepts the next CRC-valid frame as a re-sync whatever its counter (`CounterStatus.RESYNC`); the
-  timeout itself is the receiver's (vehicle_can).
+  accepts the next CRC-valid frame as a re-sync whatever its counter (`CounterStatus.RESYNC`) except
+  the last accepted counter itself: a repeat is never fresh (DESIGN section 4), so a sender frozen on
+  its last frame stays timed out for as long as it repeats it. The timeout itself is the receiver's
+  (vehicle_can).
 """
 
 from __future__ import annotations
@@ -146,11 +148,13 @@ def check_counter(
         raise ValueError(f"E2E max_delta {max_delta} outside 1..{COUNTER_MODULO - 2}")
     if last is None:
         return CounterStatus.INITIAL, 0
-    if timed_out:
-        return CounterStatus.RESYNC, 0
     delta = counter_delta(last, new)
+    # A repeated counter is never fresh data, not even after a timeout: a frozen sender that repeats
+    # its last frame must stay timed out, or it would be re-accepted once per timeout.
     if delta == 0:
         return CounterStatus.REPEATED, 0
+    if timed_out:
+        return CounterStatus.RESYNC, 0
     if delta == 1:
         return CounterStatus.OK, 0
     if delta <= max_delta:

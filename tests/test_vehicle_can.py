@@ -536,7 +536,7 @@ def test_unknown_id_list_is_bounded() -> None:
     assert rx.counts()["malformed"] == 40
 
 
-def test_timeout_then_resync_accepts_any_counter_once() -> None:
+def test_timeout_then_resync_accepts_any_counter_but_a_repeat() -> None:
     rx, s = VehicleRx(CODEC), Stream(counter=4)
     assert rx.timed_out(WheelSpeeds, 0.0)  # nothing received yet
     assert rx.age_s(WheelSpeeds, 0.0) == math.inf
@@ -544,15 +544,18 @@ def test_timeout_then_resync_accepts_any_counter_once() -> None:
     assert rx.timeout_s("GW_WheelSpeeds") == pytest.approx(0.05)
     assert not rx.timed_out(WheelSpeeds, 0.0499)
     assert rx.timed_out(WheelSpeeds, 0.0501)
-    # The sender restarted: the same counter again. Before the timeout it is a repeat ...
+    # The same counter again is a repeat, before the timeout and after it: a sender frozen on its
+    # last frame stays timed out however long it repeats it.
     assert rx.feed(s.msg(0.04, counter=4), 0.04) is None
-    # ... after it, a re-sync.
-    assert rx.feed(s.msg(0.06, counter=4), 0.06) is not None
+    assert rx.feed(s.msg(0.06, counter=4), 0.06) is None
+    assert rx.timed_out(WheelSpeeds, 0.06) and rx.counts(WheelSpeeds)["repeated"] == 2
+    # A restarted sender (any other counter) re-synchronises after the timeout.
+    assert rx.feed(s.msg(0.065, counter=0), 0.065) is not None
     assert rx.counts(WheelSpeeds)["resync"] == 1
-    assert rx.last_time_s(WheelSpeeds) == 0.06
-    assert rx.age_s(WheelSpeeds, 0.07) == pytest.approx(0.01)
-    assert rx.feed(s.msg(0.07, counter=4), 0.07) is None  # and the sequence is checked again
-    assert rx.counts(WheelSpeeds)["repeated"] == 2
+    assert rx.last_time_s(WheelSpeeds) == 0.065
+    assert rx.age_s(WheelSpeeds, 0.07) == pytest.approx(0.005)
+    assert rx.feed(s.msg(0.07, counter=0), 0.07) is None  # and the sequence is checked again
+    assert rx.counts(WheelSpeeds)["repeated"] == 3
 
 
 def test_first_frame_is_not_a_resync_and_timeouts_follow_the_cycle_time() -> None:
