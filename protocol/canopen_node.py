@@ -78,7 +78,7 @@ from bywire.protocol.host_link import (
     encode_emcy,
     error_register_for,
 )
-from bywire.protocol.timebase import data_frame
+from bywire.protocol.timebase import data_frame, rx_time_s
 
 log = logging.getLogger(__name__)
 
@@ -114,9 +114,20 @@ PDO_NOT_VALID = 1 << 31
 # The host sends 25-100 Hz: a jump of 3 is at most 30 ms of lost requests at 100 Hz, well inside
 # the 100 ms deadline. A larger jump is a replayed, restarted or foreign stream: refuse and resync.
 MAX_COUNTER_DELTA = 3
-# Bounded so that a fault in the host cannot mistake the ECU for unwatched: the host watchdog
-# (0x1016) may be slowed to 1 s at most, and never switched off.
-MAX_HOST_HEARTBEAT_TIMEOUT_MS = 1000
+# Every time a watchdog depends on is bounded by the firmware itself, not only by configuration
+# (DESIGN section 4: a host can never widen its own leash), and may be changed only while the ECU does
+# not actuate. The EDS states the same bounds as HighLimit; `load_ecu_od` refuses an EDS that differs.
+#
+# The host's control loop and the host process are watched with the same bound. DESIGN section 4 has
+# the host send at 25 .. 100 Hz: 200 ms is five periods of the slowest host, enough for a loaded host
+# computer, and at the 2 m/s^2 request limit a request replayed that long after the host hung (seed
+# 000 section 12) adds at most 0.4 m/s before the controlled stop begins.
+MAX_REQUEST_DEADLINE_MS = 200  # 0x1400sub5, RPDO1 event timer: a request older than this is stale
+MAX_HOST_HEARTBEAT_TIMEOUT_MS = 200  # 0x1016sub1 bits 0-15: the host heartbeat consumer time
+# The host watches the ECU with a 100 ms consumer time (HostMaster's ecu_timeout_s): the ECU's own
+# heartbeat must come at least twice in that window, and its status at least once.
+MAX_PRODUCER_HEARTBEAT_MS = 50  # 0x1017
+MAX_TPDO_EVENT_TIMER_MS = 100  # 0x1800..0x1802 sub5
 MAX_CALIBRATION_BYTES = 256 * 1024
 MAX_REFUSAL_CHARS = 200
 DEFAULT_MAX_FRAMES_PER_POLL = 256
@@ -538,9 +549,17 @@ class StatusStats:
 
 
 def _drain(
-    bus: can.BusABC, network: canopen.Network, first_timeout_s: float, max_frames: int
+    bus: can.BusABC,
+    network: canopen.Network,
+    first_timeout_s: float,
+    max_frames: int,
+    now_s: float | None = None,
 ) -> tuple[int, int]:
-    """Feed up to max_frames frames from the bus to the network; returns (frames, handler errors)."""
+    """Feed up to max_frames frames from the bus to the network; returns (frames, handler errors).
+
+    With `now_s`, each handler gets the frame's receive time on the clock of `now_s` (the bus's
+    stamp, never later than `now_s`), so a frame that waited in the queue while the owner stalled is
+    judged by when it arrived, not by when it was polled."""
     frames = errors = 0
     timeout = first_timeout_s
     while frames < max_frames:
@@ -552,8 +571,14 @@ def _drain(
         # CANopen speaks 11-bit data frames; 29-bit ids with the same number belong to someone else.
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             continue
+        if now_s is None:
+            stamp = msg.timestamp
+        else:
+            stamp = rx_time_s(msg, now_s)
+            if not stamp <= now_s:  # a stamp from the future (or NaN) cannot be trusted
+                stamp = now_s
         try:
-            network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+            network.notify(msg.arbitration_id, msg.data, stamp)
         except Exception:
             # A handler bug must not stop the cyclic executive: counted and logged, frame dropped.
             errors += 1
@@ -600,6 +625,7 @@ class EcuNode:
         on_calibration_write: Callable[[bytes], int | None] | None = None,
         on_unlatch: Callable[[], None] | None = None,
         *,
+        actuating: Callable[[], str | None] | None = None,
         eds_path: str | Path | None = None,
         max_frames_per_poll: int = DEFAULT_MAX_FRAMES_PER_POLL,
     ) -> None:
@@ -609,6 +635,9 @@ class EcuNode:
         self.host_node_id = host_node_id
         self._on_calibration_write = on_calibration_write
         self._on_unlatch = on_unlatch
+        # The application's state name while it actuates (writes to watchdog times are refused
+        # then), None while it does not.
+        self._actuating = actuating
         self._eds_path = Path(eds_path) if eds_path is not None else EDS_PATH
         self._max_frames = max_frames_per_poll
         self.od = load_ecu_od(node_id, eds_path)
@@ -658,20 +687,37 @@ class EcuNode:
         for index in list(self.node.data_store):
             if 0x1000 <= index <= 0x1FFF:
                 del self.node.data_store[index]
-        self._hb_timer = EventTimer(int(od_default(self.od, PRODUCER_HEARTBEAT_INDEX)))
+        producer_ms = int(od_default(self.od, PRODUCER_HEARTBEAT_INDEX))
         consumer = int(od_default(self.od, CONSUMER_HEARTBEAT_INDEX, 1))
         node, timeout_ms = (consumer >> 16) & 0xFF, consumer & 0xFFFF
-        if node != self.host_node_id or timeout_ms == 0:
+        if node != self.host_node_id:
             raise ValueError(
                 f"{self._eds_path}: 0x1016sub1 = 0x{consumer:08X} must watch host node "
-                f"0x{self.host_node_id:02X} with a nonzero time"
+                f"0x{self.host_node_id:02X}"
             )
+        # The EDS's defaults obey the same bounds as an SDO write: a configuration cannot start the
+        # ECU with a watchdog the firmware would refuse.
+        defaults = [
+            (producer_ms, "producer heartbeat time", "0x1017"),
+            (timeout_ms, "consumer heartbeat time", "0x1016sub1"),
+            (
+                self.rpdo.event_timer_ms,
+                "request deadline",
+                f"0x{RPDO_COMM_BASE + self.rpdo.number - 1:04X}sub5",
+            ),
+        ]
+        defaults += [
+            (t.event_timer_ms, "TPDO event timer", f"0x{TPDO_COMM_BASE + t.number - 1:04X}sub5")
+            for t in self.tpdos
+        ]
+        for value_ms, what, where in defaults:
+            try:
+                _check_time(value_ms, what, "switch it off")
+            except RefusedWrite as exc:
+                raise ValueError(f"{self._eds_path}: {where} default: {exc.reason}") from None
+        self._hb_timer = EventTimer(producer_ms)
         self.host_heartbeat.timeout_ms = timeout_ms
         self.request_deadline_ms = self.rpdo.event_timer_ms
-        if self.request_deadline_ms < 1:
-            raise ValueError(
-                f"{self._eds_path}: RPDO{self.rpdo.number} event timer (request deadline) must be >= 1 ms"
-            )
         self._tpdo_timers = {t.number: EventTimer(t.event_timer_ms) for t in self.tpdos}
 
     def _boot(self) -> None:
@@ -687,8 +733,8 @@ class EcuNode:
 
     def poll(self, now_s: float | None = None) -> int:
         """Drain the bus (up to max_frames_per_poll frames) and handle each; returns frames read."""
-        self._rx_now_s = self._clock.now() if now_s is None else now_s
-        frames, errors = _drain(self._bus, self.network, 0.0, self._max_frames)
+        self._rx_now_s = now = self._clock.now() if now_s is None else now_s
+        frames, errors = _drain(self._bus, self.network, 0.0, self._max_frames, now)
         self.dispatch_errors += errors
         self._rx_frames += frames
         return frames
@@ -802,7 +848,8 @@ class EcuNode:
             self._boot()
 
     def _on_host_heartbeat(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
-        self.host_heartbeat.on_frame(data, self._rx_now_s)
+        # Judged by its receive time: a heartbeat queued during a stall is as old as it is.
+        self.host_heartbeat.on_frame(data, timestamp)
 
     def _on_rpdo(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         stats = self.request_stats
@@ -833,8 +880,8 @@ class EcuNode:
             stats.lost += delta - 1
         self._last_counter = request.counter
         stats.accepted += 1
-        self._latest = (request, self._rx_now_s)
-        self._latest_us = _us(self._rx_now_s)
+        self._latest = (request, timestamp)
+        self._latest_us = _us(timestamp)
         for (index, subindex), name in self._request_keys:
             self._store(index, subindex, raw[name])
 
@@ -877,10 +924,8 @@ class EcuNode:
     def _check_write(self, index: int, subindex: int, data: bytes) -> None:
         if index == PRODUCER_HEARTBEAT_INDEX:
             (period_ms,) = struct.unpack("<H", data)
-            if period_ms == 0:
-                raise RefusedWrite(
-                    "producer heartbeat time 0 would silence the ECU heartbeat", ABORT_VALUE_TOO_LOW
-                )
+            _check_time(period_ms, "producer heartbeat time", "silence the ECU heartbeat")
+            self._check_not_actuating("producer heartbeat time")
             self._hb_timer.period_ms = period_ms
         elif index == CONSUMER_HEARTBEAT_INDEX and subindex == 1:
             (word,) = struct.unpack("<L", data)
@@ -890,27 +935,18 @@ class EcuNode:
                     f"consumer heartbeat must watch host node 0x{self.host_node_id:02X}, got 0x{word:08X}",
                     ABORT_VALUE_RANGE,
                 )
-            if timeout_ms == 0:
-                raise RefusedWrite(
-                    "consumer heartbeat time 0 would switch the host watchdog off", ABORT_VALUE_TOO_LOW
-                )
-            if timeout_ms > MAX_HOST_HEARTBEAT_TIMEOUT_MS:
-                raise RefusedWrite(
-                    f"consumer heartbeat time {timeout_ms} ms exceeds {MAX_HOST_HEARTBEAT_TIMEOUT_MS} ms",
-                    ABORT_VALUE_TOO_HIGH,
-                )
+            _check_time(timeout_ms, "consumer heartbeat time", "switch the host watchdog off")
+            self._check_not_actuating("consumer heartbeat time")
             self.host_heartbeat.timeout_ms = timeout_ms
         elif index == RPDO_COMM_BASE + self.rpdo.number - 1 and subindex == PDO_EVENT_TIMER_SUB:
             (deadline_ms,) = struct.unpack("<H", data)
-            if deadline_ms == 0:
-                raise RefusedWrite(
-                    "request deadline 0 would switch request monitoring off", ABORT_VALUE_TOO_LOW
-                )
+            _check_time(deadline_ms, "request deadline", "switch request monitoring off")
+            self._check_not_actuating("request deadline")
             self.request_deadline_ms = deadline_ms
         elif TPDO_COMM_BASE <= index < TPDO_MAP_BASE and subindex == PDO_EVENT_TIMER_SUB:
             (period_ms,) = struct.unpack("<H", data)
-            if period_ms == 0:
-                raise RefusedWrite("TPDO event timer 0 would stop the status", ABORT_VALUE_TOO_LOW)
+            _check_time(period_ms, "TPDO event timer", "stop the status")
+            self._check_not_actuating("TPDO event timer")
             number = index - TPDO_COMM_BASE + 1
             if number in self._tpdo_timers:
                 self._tpdo_timers[number].period_ms = period_ms
@@ -923,6 +959,15 @@ class EcuNode:
             self._write_calibration(data)
         elif (index, subindex) == (COMMAND_INDEX, UNLATCH_SUB):
             self._unlatch(data)
+
+    def _check_not_actuating(self, what: str) -> None:
+        state = self._actuating() if self._actuating is not None else None
+        if state is not None:
+            raise RefusedWrite(
+                f"{what} cannot change while the ECU actuates ({state}): a watchdog's time is "
+                "set before engaging, never during",
+                ABORT_DEVICE_STATE,
+            )
 
     def _write_calibration(self, data: bytes) -> None:
         if len(data) > MAX_CALIBRATION_BYTES:
@@ -1014,6 +1059,26 @@ def _raw_encoder(var: ODVariable) -> Callable[[Any], bytes]:
             raise ValueError("Value does not fit in specified type") from None
 
     return encode
+
+
+# The bound of each bounded time, by the name `_check_time` is given.
+_TIME_BOUNDS_MS = {
+    "producer heartbeat time": MAX_PRODUCER_HEARTBEAT_MS,
+    "consumer heartbeat time": MAX_HOST_HEARTBEAT_TIMEOUT_MS,
+    "request deadline": MAX_REQUEST_DEADLINE_MS,
+    "TPDO event timer": MAX_TPDO_EVENT_TIMER_MS,
+}
+
+
+def _check_time(value_ms: int, what: str, zero_would: str) -> None:
+    """A watchdog time within 1 .. its firmware bound, else the CiA 301 abort for too low / too high."""
+    if value_ms == 0:
+        raise RefusedWrite(f"{what} 0 would {zero_would}", ABORT_VALUE_TOO_LOW)
+    bound = _TIME_BOUNDS_MS[what]
+    if value_ms > bound:
+        raise RefusedWrite(
+            f"{what} {value_ms} ms exceeds the firmware's bound of {bound} ms", ABORT_VALUE_TOO_HIGH
+        )
 
 
 def _call_handler(handler: Callable[[bytes], Any], data: bytes, what: str) -> Any:

@@ -29,10 +29,15 @@ from bywire.protocol.canopen_node import (
     MAX_CALIBRATION_BYTES,
     MAX_COUNTER_DELTA,
     MAX_HOST_HEARTBEAT_TIMEOUT_MS,
+    MAX_PRODUCER_HEARTBEAT_MS,
+    MAX_REQUEST_DEADLINE_MS,
+    MAX_TPDO_EVENT_TIMER_MS,
     NMT_COB_ID,
     PRODUCER_HEARTBEAT_INDEX,
     REFUSAL_INDEX,
+    RPDO_COMM_BASE,
     SDO_SERVER_INDEX,
+    TPDO_COMM_BASE,
     NmtCommand,
     NmtState,
     PdoLayout,
@@ -177,6 +182,19 @@ def _phys_range(var: ODVariable) -> str:
     return f"{_num(lo * var.factor)} .. {_num(hi * var.factor)}"
 
 
+def _limits(var: ODVariable) -> str:
+    """The EDS's LowLimit .. HighLimit (packed words in hex, like their defaults)."""
+    if var.min is None and var.max is None:
+        return ""
+
+    def show(x: int | None) -> str:
+        if x is None:
+            return ""
+        return f"0x{x:08X}" if var.data_type == dt.UNSIGNED32 else str(x)
+
+    return f"{show(var.min)} .. {show(var.max)}"
+
+
 def _object_rows(od: ObjectDictionary, indices: Iterable[int]) -> list[tuple[object, ...]]:
     rows: list[tuple[object, ...]] = []
     for index in indices:
@@ -200,6 +218,7 @@ def _object_rows(od: ObjectDictionary, indices: Iterable[int]) -> list[tuple[obj
                     var.access_type,
                     "yes" if var.pdo_mappable else "",
                     default,
+                    _limits(var),
                     _num(var.factor) if var.pdo_mappable and var.data_type in dt.NUMBER_TYPES else "",
                     var.unit,
                     var.description,
@@ -303,11 +322,65 @@ def _render_eds(od: ObjectDictionary, node_id: int) -> list[str]:
         f"- The ECU counts the host as alive while the host heartbeat is at most {consumer_ms} ms old AND "
         "reports OPERATIONAL; a PRE-OPERATIONAL or STOPPED host is a lost host. 0x1016sub1 may be set to "
         f"1 .. {MAX_HOST_HEARTBEAT_TIMEOUT_MS} ms for node 0x{host_id:02X} only.",
+        "- Every frame is judged by its receive time (the bus's stamp), not by when the ECU polled it: a "
+        "heartbeat or request that waited in the queue while the ECU stalled is as old as it is.",
         "- A request is accepted when its alive counter advances by 1 .. "
         f"{MAX_COUNTER_DELTA}; it is stale when older than the RPDO deadline. Repeated, out-of-sequence, "
         "malformed (length), invalid (flag bits) and not-OPERATIONAL requests are counted and dropped.",
         "- The host publishes a status snapshot when the TPDO mapping the ECU state arrives; the ECU "
         "sends that TPDO last in each event.",
+        "",
+    ]
+    out += [
+        "### Watchdog bounds (the firmware's, not only the configuration's)",
+        "",
+        "A host can never widen its own leash (DESIGN section 4): every time a watchdog depends on is "
+        "bounded by the firmware itself, a larger value is refused with abort 0x06090031 (value too "
+        "high), 0 with 0x06090032 (value too low), and a change while the ECU actuates (ENGAGED, PAUSED, "
+        "SAFE_STOP, DISABLED) with 0x08000022 (device state); calibrations are fixed then too. The EDS "
+        "states the same bounds as HighLimit.",
+        "",
+    ]
+    out += _table(
+        ("object", "time", "bound", "why"),
+        (
+            (
+                f"0x{RPDO_COMM_BASE:04X}sub5",
+                "request deadline",
+                f"1 .. {MAX_REQUEST_DEADLINE_MS} ms",
+                "five periods of the slowest host (25 Hz); a request replayed that long at the 2 m/s^2 "
+                "limit adds at most 0.4 m/s before the stop begins",
+            ),
+            (
+                "0x1016sub1",
+                "host heartbeat consumer time",
+                f"1 .. {MAX_HOST_HEARTBEAT_TIMEOUT_MS} ms",
+                "the same bound for a dead host process as for a hung control loop",
+            ),
+            (
+                "0x1017",
+                "ECU heartbeat producer time",
+                f"1 .. {MAX_PRODUCER_HEARTBEAT_MS} ms",
+                "at least twice within the host's 100 ms consumer time",
+            ),
+            (
+                f"0x{TPDO_COMM_BASE:04X}..0x{TPDO_COMM_BASE + 2:04X} sub5",
+                "status TPDO event timers",
+                f"1 .. {MAX_TPDO_EVENT_TIMER_MS} ms",
+                "the host sees the ECU's state at least once within its consumer time",
+            ),
+        ),
+    )
+    out += [
+        "### Re-arming and engaging",
+        "",
+        "- Only a human re-arms: DISABLED is left on the safety driver's arm button (GW_Driver.SafetyArm, "
+        f"from the gateway on vehicle CAN) after the service unlatch (1 into 0x{COMMAND_INDEX:04X}sub1, "
+        "refused unless the ECU is DISABLED and the radio is heard saying RUN or PAUSE); MANUAL on the arm "
+        "button alone. The host's REARM leaves only a SAFE_STOP, at standstill with no fault.",
+        "- Engagement is an edge: READY -> ENGAGED needs ENGAGE to rise between two fresh requests while "
+        "every precondition holds. After a latch, an ECU reset or an NMT restart a held ENGAGE engages "
+        "nothing. REARM with ENGAGE from the hold of a SAFE_STOP goes straight to ENGAGED.",
         "",
     ]
     out += _enum_table("NMT states (heartbeat byte)", NmtState)
@@ -320,7 +393,7 @@ def _render_eds(od: ObjectDictionary, node_id: int) -> list[str]:
     out += ["### Manufacturer objects", ""]
     manufacturer = [i for i in sorted(od) if 0x2000 <= i <= 0x5FFF]
     out += _table(
-        ("object", "name", "type", "access", "PDO", "default", "factor", "unit", "description"),
+        ("object", "name", "type", "access", "PDO", "default", "limits", "factor", "unit", "description"),
         _object_rows(od, manufacturer),
     )
     out += [
@@ -335,7 +408,7 @@ def _render_eds(od: ObjectDictionary, node_id: int) -> list[str]:
     ]
     communication = [i for i in sorted(od) if 0x1000 <= i <= 0x1FFF]
     out += _table(
-        ("object", "name", "type", "access", "PDO", "default", "factor", "unit", "description"),
+        ("object", "name", "type", "access", "PDO", "default", "limits", "factor", "unit", "description"),
         _object_rows(od, communication),
     )
 

@@ -26,6 +26,7 @@ import logging
 import select
 import socket
 import struct
+import sys
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -184,6 +185,33 @@ def decode_datagram(
     return seq_no, msgs
 
 
+# SO_TIMESTAMPNS (Linux, asm-generic and x86 alike; Python's socket module does not name it): each
+# datagram carries an SCM_TIMESTAMPNS control message with its receive time as a struct timespec
+# on CLOCK_REALTIME, the clock python-can stamps frames on.
+_SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct("@ll")
+_STAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
+
+
+def _enable_kernel_timestamps(sock: socket.socket) -> bool:
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def _kernel_stamp(ancillary: list[tuple[int, int, bytes]]) -> float:
+    """The datagram's kernel receive time (UNIX seconds), or now if the kernel gave none."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            return sec + nsec * 1e-9
+    return time.time()
+
+
 class UdpCanBus(can.BusABC):
     """python-can bus over unicast UDP (cannelloni v2 format), python-can interface "bywire_udp".
 
@@ -222,6 +250,9 @@ class UdpCanBus(can.BusABC):
             # Best effort (the kernel caps it at net.core.rmem_max): UDP drops what overflows the
             # buffer, and a burst of small CAN datagrams costs far more buffer than its bytes.
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
+            # Frames are stamped with the kernel's receive time where it gives one, so a receiver
+            # that stalled judges a queued frame by when it arrived, not by when it was read.
+            self._kernel_stamps = _enable_kernel_timestamps(self._sock)
             self._sock.bind(bind_addr)
             self._sock.setblocking(False)
         except OSError as exc:
@@ -280,12 +311,12 @@ class UdpCanBus(can.BusABC):
             own.channel = self.channel
             self._pending.append(own)
 
-    def _accept(self, data: bytes, addr: tuple[Any, ...]) -> list[can.Message]:
+    def _accept(self, data: bytes, addr: tuple[Any, ...], stamp: float) -> list[can.Message]:
         if self._peer is not None and (str(addr[0]), int(addr[1])) != self._peer:
             self.rx_foreign += 1
             return []
         try:
-            seq_no, msgs = decode_datagram(data, timestamp=time.time(), channel=self.channel)
+            seq_no, msgs = decode_datagram(data, timestamp=stamp, channel=self.channel)
         except MalformedDatagram as exc:
             self.rx_errors += 1
             log.debug("UdpCanBus %s: dropped datagram from %s: %s", self.channel, addr, exc)
@@ -305,7 +336,12 @@ class UdpCanBus(can.BusABC):
             # does not end a recv(timeout=0) poll while valid frames sit behind it.
             while True:
                 try:
-                    data, addr = self._sock.recvfrom(MAX_DATAGRAM_BYTES)
+                    if self._kernel_stamps:
+                        data, ancillary, _, addr = self._sock.recvmsg(MAX_DATAGRAM_BYTES, _STAMP_SPACE)
+                        stamp = _kernel_stamp(ancillary)
+                    else:
+                        data, addr = self._sock.recvfrom(MAX_DATAGRAM_BYTES)
+                        stamp = time.time()
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError as exc:
@@ -313,7 +349,7 @@ class UdpCanBus(can.BusABC):
                     self.rx_errors += 1
                     log.debug("UdpCanBus %s: recvfrom failed: %s", self.channel, exc)
                     break
-                msgs = self._accept(data, addr)
+                msgs = self._accept(data, addr, stamp)
                 if msgs:
                     self._pending.extend(msgs[1:])
                     return msgs[0], False
