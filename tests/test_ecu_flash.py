@@ -1,13 +1,17 @@
-"""Firmware images and flashing: reproducible self-contained images, A/B slot writes, calibrations,
-refusals that leave the store byte-for-byte unchanged, and kills at any instant of a flash."""
+"""Firmware images and flashing: reproducible self-contained images, the check that an image holds
+an ECU, A/B slot writes, calibrations, refusals that leave the store byte-for-byte unchanged, kills
+at any instant of a flash, and I/O errors at every call site reported as what the store boots."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
+import io
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -18,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ecu_test_images import fake_ecu_image, mechanics_contents
 
 import bywire.ecu
 from bywire.ecu import firmware, flash, store
@@ -26,6 +31,7 @@ from bywire.ecu.calibration import CalibrationError, calibration_from_dict, dump
 from bywire.ecu.firmware import ImageContents
 from bywire.ecu.flash import FlashError
 from bywire.ecu.store import BootRecord
+from bywire.ecu.trust import DEVELOPMENT
 
 PASSAT = Path(bywire.ecu.__path__[0]) / "calibrations" / "passat.json"
 
@@ -41,36 +47,15 @@ def main(argv):
 """
 
 
-# The bywire files test images keep: the flash/boot machinery and what it imports. The real
-# image (all of bywire.protocol and bywire.ecu) is tested on its own below, so that these
-# mechanics tests do not depend on the state of the rest of the firmware.
-MECHANICS = {
-    "bywire/__init__.py",
-    "bywire/clock.py",
-    "bywire/protocol/__init__.py",
-    "bywire/protocol/ecu_types.py",
-    "bywire/protocol/vehicle.dbc",
-    "bywire/ecu/__init__.py",
-    "bywire/ecu/boot.py",
-    "bywire/ecu/calibration.py",
-    "bywire/ecu/calibrations/passat.json",
-    "bywire/ecu/firmware.py",
-    "bywire/ecu/flash.py",
-    "bywire/ecu/store.py",
-}
-
-
 @pytest.fixture(scope="module")
 def contents() -> ImageContents:
-    full = firmware.collect_image_contents()
-    files = {k: v for k, v in full.files.items() if not k.startswith("bywire/") or k in MECHANICS}
-    assert set(files) >= MECHANICS
-    return ImageContents(files, full.distributions, full.skipped_extensions, full.entry_points)
+    return mechanics_contents()
 
 
 @pytest.fixture(scope="module")
 def images(tmp_path_factory: pytest.TempPathFactory, contents: ImageContents) -> dict[str, Path]:
-    """Test images: two good ones (different versions) and one whose app cannot even be imported."""
+    """Test images: two good ones (different versions), one whose app cannot even be imported, and
+    zips that are not ECU images though their self-test would pass."""
     d = tmp_path_factory.mktemp("images")
     out = {}
     for name, app in (
@@ -78,11 +63,40 @@ def images(tmp_path_factory: pytest.TempPathFactory, contents: ImageContents) ->
         ("good2", FAKE_APP + "\n# second build\n"),
         ("broken", "raise RuntimeError('flash me not')\n"),
     ):
-        firmware.write_image(
-            d / f"{name}.pyz", contents, entry="fakeapp:main", extra_files={"fakeapp.py": app.encode()}
-        )
-        out[name] = d / f"{name}.pyz"
+        out[name] = fake_ecu_image(d / f"{name}.pyz", app)
+    # Some application, no ECU in it at all: its own entry, and a self-test that says "ok".
+    ecu_core = {"bywire/ecu/app.py", "bywire/ecu/core.py", "bywire/ecu/safety.py", "bywire/ecu/executive.py"}
+    no_ecu = {k: v for k, v in contents.files.items() if k not in ecu_core}
+    firmware.write_image(
+        d / "other_app.pyz",
+        ImageContents(no_ecu, contents.distributions, contents.skipped_extensions, contents.entry_points),
+        entry="fakeapp:main",
+        extra_files={"fakeapp.py": FAKE_APP.encode()},
+    )
+    out["other_app"] = d / "other_app.pyz"
+    without_safety = {k: v for k, v in contents.files.items() if k != "bywire/ecu/safety.py"}
+    firmware.write_image(
+        d / "no_safety.pyz",
+        ImageContents(
+            without_safety, contents.distributions, contents.skipped_extensions, contents.entry_points
+        ),
+        extra_files={"bywire/ecu/app.py": FAKE_APP.encode()},
+    )
+    out["no_safety"] = d / "no_safety.pyz"
+    # The ECU's files, but a __main__.py that runs something else when the ECU boots it.
+    buf = io.BytesIO()
+    with zipfile.ZipFile(out["good1"]) as src, zipfile.ZipFile(buf, "w") as dst:
+        for info in src.infolist():
+            data = src.read(info)
+            dst.writestr(info, b"print('not the ECU')\n" if info.filename == "__main__.py" else data)
+    (d / "other_main.pyz").write_bytes(buf.getvalue())
+    out["other_main"] = d / "other_main.pyz"
     return out
+
+
+def dev_flash(root: Path, image: Path, **kwargs: Any) -> flash.FirmwareFlashResult:
+    """Flash into a development store (these tests are about slots and files, not signatures)."""
+    return flash.flash_firmware(root, image, selftest=False, trust=DEVELOPMENT, **kwargs)
 
 
 def snapshot(root: Path) -> dict[str, bytes | None]:
@@ -112,15 +126,20 @@ def write_calibration(path: Path, version: int, **changes: Any) -> Path:
     return path
 
 
-def bootable(root: Path) -> tuple[str, int | None]:
-    """(image version, calibration version) the ECU would boot now, resolving fallbacks like boot."""
+def boot_choice(root: Path) -> tuple[str, str, str]:
+    """(slot, "on trial" | "confirmed", image version) the ECU would boot now, like boot does."""
     record = store.read_boot_record(root)
     assert record is not None
     plan = plan_boot(record, functools.partial(store.slot_usable, root))
     assert plan.slot is not None, plan.problem
     _, manifest = store.verify_image(root, plan.slot)
+    return plan.slot, "on trial" if plan.record.state == "trial" else "confirmed", manifest.version
+
+
+def bootable(root: Path) -> tuple[str, int | None]:
+    """(image version, calibration version) the ECU would boot now, resolving fallbacks like boot."""
     cal = store.usable_calibration(root).calibration
-    return manifest.version, cal.version if cal is not None else None
+    return boot_choice(root)[2], cal.version if cal is not None else None
 
 
 # --- images -------------------------------------------------------------------------------------
@@ -134,16 +153,21 @@ def test_real_image_is_self_contained_and_passes_its_selftest(tmp_path: Path) ->
     assert not [n for n in names if n.endswith((".so", ".pyc"))]
     for needed in (
         "bywire/ecu/store.py",
+        "bywire/ecu/signing.py",
         "bywire/protocol/vehicle.dbc",
         "bywire/ecu/calibrations/passat.json",
+        *firmware.ECU_IMAGE_FILES,
     ):
         assert needed in names
     assert any(n.startswith("python_can_remote-") and n.endswith("/entry_points.txt") for n in names)
     assert "bywire/cli.py" not in names, "the image holds only what the ECU runs"
-    # -I -S: only the zip and the standard library are importable, so this proves self-containment.
+    assert not [n for n in names if n.startswith("cryptography/")], "the ECU itself never verifies"
+    # -I -S: only the zip and the standard library are importable, so this proves self-containment
+    # (bywire.ecu.signing among the modules it imports, without the compiled cryptography package).
     report = firmware.run_selftest(tmp_path / "ecu.pyz")
     assert report.ok, report.output
     assert report.version == manifest.version
+    firmware.check_ecu_image((tmp_path / "ecu.pyz").read_bytes(), "ecu.pyz")
 
 
 BUILD = """
@@ -209,6 +233,43 @@ def test_write_image_refuses_a_missing_entry(tmp_path: Path, contents: ImageCont
     assert not (tmp_path / "x.pyz").exists()
 
 
+# --- what an ECU image is ------------------------------------------------------------------------
+
+
+def test_an_application_whose_selftest_passes_is_still_not_an_ecu_image(
+    tmp_path: Path, images: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert firmware.run_selftest(images["other_app"]).ok, "the zip's own self-test says ok"
+    root = tmp_path / "ecu"
+    rc = flash.main(["--store", str(root), "--image", str(images["other_app"]), "--allow-unsigned"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1
+    assert err == (
+        f"error: {images['other_app']}: not an ECU image: its entry is 'fakeapp:main',"
+        " not bywire's ECU app bywire.ecu.app:main"
+    )
+    assert not root.exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "problem"),
+    [
+        ("no_safety", "not an ECU image: bywire/ecu/safety.py missing"),
+        ("other_main", "not an ECU image: its __main__.py is not the one the firmware builder writes"),
+    ],
+)
+def test_an_image_without_the_ecu_is_refused_and_the_store_unchanged(
+    tmp_path: Path, images: dict[str, Path], name: str, problem: str
+) -> None:
+    root = tmp_path / "ecu"
+    dev_flash(root, images["good1"])
+    before = snapshot(root)
+    with pytest.raises(FlashError) as e:
+        dev_flash(root, images[name])
+    assert str(e.value) == f"{images[name]}: {problem}"
+    assert snapshot(root) == before
+
+
 # --- firmware flashing --------------------------------------------------------------------------
 
 
@@ -216,30 +277,44 @@ def test_flash_firmware_alternates_slots_and_keeps_the_good_one(
     tmp_path: Path, images: dict[str, Path]
 ) -> None:
     root = tmp_path / "ecu"
-    first = flash.flash_firmware(root, images["good1"], selftest=False)
+    first = dev_flash(root, images["good1"])
     assert (first.slot, first.previous) == ("a", None)
     assert store.read_boot_record(root) == BootRecord(active="a", previous=None, state="trial")
     assert store.active_image(root)[2].version == first.manifest.version
-    # The boot supervisor confirms a slot once its image came up.
+    # The boot supervisor confirms a slot once its image proved itself.
     store.write_boot_record(root, BootRecord(active="a", state="confirmed"))
 
-    second = flash.flash_firmware(root, images["good2"], selftest=False)
+    second = dev_flash(root, images["good2"])
     assert (second.slot, second.previous) == ("b", "a")
     assert store.read_boot_record(root) == BootRecord(active="b", previous="a", state="trial")
     # Flashing again before b proved itself replaces b and still keeps a, the known-good image.
-    third = flash.flash_firmware(root, images["good1"], selftest=False)
+    third = dev_flash(root, images["good1"])
     assert (third.slot, third.previous) == ("b", "a")
     assert store.read_manifest(root, "a").version == first.manifest.version
     assert not (root / "staging").exists()
 
 
+def test_flash_clears_the_target_slots_boot_history(tmp_path: Path, images: dict[str, Path]) -> None:
+    root = tmp_path / "ecu"
+    dev_flash(root, images["good1"])
+    dev_flash(root, images["good2"])
+    died = [store.BootEntry("b", "v", 1.8e9 + i, "failed", 1) for i in range(3)]
+    store.write_boot_record(
+        root, BootRecord(active="b", previous="a", history=(*died, store.BootEntry("a", "v", 1.7e9)))
+    )
+    dev_flash(root, images["good1"])  # a is replaced: its old image's boots are not the new one's
+    record = store.read_boot_record(root)
+    assert record is not None and (record.active, record.previous) == ("a", "b")
+    assert record.history == tuple(died)
+
+
 def test_flash_refused_by_selftest_leaves_store_unchanged(tmp_path: Path, images: dict[str, Path]) -> None:
     root = tmp_path / "ecu"
-    flash.flash_firmware(root, images["good1"], selftest=False)
+    dev_flash(root, images["good1"])
     before = snapshot(root)
     with pytest.raises(FlashError, match="selftest") as e:
         flash.flash_firmware(root, images["broken"])
-    assert "entry fakeapp:main: RuntimeError: flash me not" in str(e.value)
+    assert "bywire.ecu.app: RuntimeError: flash me not" in str(e.value)
     assert snapshot(root) == before
 
 
@@ -247,13 +322,13 @@ def test_refused_first_flash_leaves_no_store_behind(tmp_path: Path) -> None:
     junk = tmp_path / "junk.pyz"
     junk.write_bytes(b"PK not really")
     with pytest.raises(FlashError, match="not a firmware image"):
-        flash.flash_firmware(tmp_path / "new", junk)
+        flash.flash_firmware(tmp_path / "new", junk, trust=DEVELOPMENT)
     assert not (tmp_path / "new").exists()
 
 
 def test_flash_refuses_a_file_that_is_not_an_image(tmp_path: Path, images: dict[str, Path]) -> None:
     root = tmp_path / "ecu"
-    flash.flash_firmware(root, images["good1"], selftest=False)
+    dev_flash(root, images["good1"])
     before = snapshot(root)
     junk = tmp_path / "junk.pyz"
     junk.write_bytes(b"PK not really")
@@ -264,13 +339,13 @@ def test_flash_refuses_a_file_that_is_not_an_image(tmp_path: Path, images: dict[
 
 def test_flash_overwrites_a_slot_whose_image_rotted(tmp_path: Path, images: dict[str, Path]) -> None:
     root = tmp_path / "ecu"
-    flash.flash_firmware(root, images["good1"], selftest=False)
+    dev_flash(root, images["good1"])
     store.write_boot_record(root, BootRecord(active="a"))
-    flash.flash_firmware(root, images["good2"], selftest=False)
+    dev_flash(root, images["good2"])
     store.write_boot_record(root, BootRecord(active="b", previous="a"))
     image_b = store.layout(root).image("b")
     image_b.write_bytes(image_b.read_bytes()[:-10])  # active b rotted: a is what still boots
-    result = flash.flash_firmware(root, images["good2"], selftest=False)
+    result = dev_flash(root, images["good2"])
     assert (result.slot, result.previous) == ("b", "a")
 
 
@@ -376,7 +451,7 @@ def test_bad_calibration_refuses_the_firmware_flashed_with_it(
     tmp_path: Path, images: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     root = tmp_path / "ecu"
-    flash.flash_firmware(root, images["good1"], selftest=False)
+    dev_flash(root, images["good1"])
     before = snapshot(root)
     d = calibration_doc(2)
     d["coast_map"]["accel_mps2"][0] = 0.5
@@ -394,7 +469,7 @@ def test_cli_needs_something_to_flash(tmp_path: Path, capsys: pytest.CaptureFixt
     assert not (tmp_path / "s").exists()
 
 
-# --- crashes ------------------------------------------------------------------------------------
+# --- crashes and I/O errors ---------------------------------------------------------------------
 
 
 class PowerCut(Exception):
@@ -462,7 +537,7 @@ def test_firmware_flash_cut_at_every_rename_leaves_a_bootable_image(
     for trial in (False, True):
         for cut in range(20):
             root = tmp_path / f"ecu{cut}{trial}"
-            flash.flash_firmware(root, images["good1"], selftest=False)
+            dev_flash(root, images["good1"])
             store.write_boot_record(root, BootRecord(active="a"))
             if trial:  # a second image on trial, not yet confirmed: a must survive the next flash
                 flash.flash_firmware(root, images["good1"], selftest=False)
@@ -488,7 +563,7 @@ def test_flash_killed_at_random_instants_leaves_a_bootable_store(
 ) -> None:
     """Real SIGKILLs of `bywire ecu flash` (image + calibration) at random instants of its work."""
     root = tmp_path / "ecu"
-    flash.flash_firmware(root, images["good1"], selftest=False)
+    dev_flash(root, images["good1"])
     flash.flash_calibration(root, write_calibration(tmp_path / "c1.json", 1))
     cal2 = write_calibration(tmp_path / "c2.json", 2)
     # Without the self-test (a kill in it is a kill while staging, like any other before the swap)
@@ -534,3 +609,144 @@ def test_flash_killed_at_random_instants_leaves_a_bootable_store(
     store.write_boot_record(root, BootRecord(active="a"))
     flash.flash_firmware(root, images["good2"], selftest=False)
     assert bootable(root)[0] == new[0]
+
+
+@pytest.fixture
+def eio_at(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[[int], None]]:
+    """Arm an EIO at the n-th call of os.write, os.fsync, os.replace or os.rename, counted together:
+    every call site where a failing disk reports an error, in turn. arm(-1) disarms."""
+    budget = {"n": -1}
+
+    def guarded(real: Callable[..., Any]) -> Callable[..., Any]:
+        def op(*args: Any, **kwargs: Any) -> Any:
+            if budget["n"] == 0:
+                budget["n"] = -1
+                raise OSError(errno.EIO, os.strerror(errno.EIO))
+            if budget["n"] > 0:
+                budget["n"] -= 1
+            return real(*args, **kwargs)
+
+        return op
+
+    for name in ("write", "fsync", "replace", "rename"):
+        monkeypatch.setattr(os, name, guarded(getattr(os, name)))
+
+    def arm(n: int) -> None:
+        budget["n"] = n
+
+    yield arm
+    budget["n"] = -1
+
+
+BOOTS = re.compile(
+    r"(?:boots|will boot) slot (?P<slot>[ab]) (?P<state>on trial|confirmed) \(image (?P<version>\S+)\)"
+)
+
+
+@pytest.mark.parametrize("trial", [False, True])
+def test_firmware_flash_io_error_at_every_call_site_says_what_the_store_boots(
+    tmp_path: Path,
+    images: dict[str, Path],
+    eio_at: Callable[[int], None],
+    capsys: pytest.CaptureFixture[str],
+    trial: bool,
+) -> None:
+    versions = {k: firmware.read_image_info(v)["version"] for k, v in images.items() if k.startswith("good")}
+    seen = set()
+    for cut in range(200):
+        root = tmp_path / f"ecu{cut}"
+        dev_flash(root, images["good1"])
+        store.write_boot_record(root, BootRecord(active="a"))
+        if trial:  # a second image on trial, not yet confirmed: a must survive the next flash
+            dev_flash(root, images["good1"])
+        capsys.readouterr()
+        eio_at(cut)
+        rc = flash.main(["--store", str(root), "--image", str(images["good2"]), "--no-selftest"])
+        eio_at(-1)
+        err = capsys.readouterr().err
+        if rc == 0:
+            assert boot_choice(root) == ("b", "on trial", versions["good2"])
+            break
+        # Progress lines may come first (stderr is the flash's log); the failure is one line, the last.
+        assert rc == 1 and "Traceback" not in err, (cut, err)
+        assert [line for line in err.splitlines() if line.startswith("error: ")] == err.splitlines()[-1:], err
+        err = err.splitlines()[-1]
+        assert "EIO (Input/output error)" in err, (cut, err)
+        said = BOOTS.search(err)
+        assert said is not None, (cut, err)
+        # The message is the truth: the store boots exactly what it says.
+        assert boot_choice(root) == (said["slot"], said["state"], said["version"]), (cut, err)
+        assert store.slot_usable(root, "a") is None, f"cut {cut}: the known-good slot was touched"
+        if "committed to slot b (trial)" in err:
+            assert said["version"] == versions["good2"], err
+            if "directory fsync failed" in err:
+                seen.add("committed, not synced")
+                assert "the store is consistent and will boot slot b on trial" in err, err
+                assert "may bring back slot a" in err, err
+            else:
+                seen.add("committed, not cleaned up")
+                assert "removing the staging directory failed" in err, err
+        else:
+            seen.add("not committed")
+            assert (
+                "nothing committed: the store still boots" in err or "new image was not committed" in err
+            ), err
+            assert said["version"] == versions["good1"], err
+            if trial:
+                expected = "confirmed" if "trial image in slot b was dropped" in err else "on trial"
+                assert said["state"] == expected, err
+        # Whatever the error left, the next flash goes through.
+        flash.flash_firmware(root, images["good2"], selftest=False)
+        assert boot_choice(root)[2] == versions["good2"]
+    else:
+        pytest.fail("the flash never completed")
+    assert seen == {"committed, not synced", "committed, not cleaned up", "not committed"}, seen
+
+
+def test_calibration_flash_io_error_at_every_call_site_says_what_the_store_uses(
+    tmp_path: Path, eio_at: Callable[[int], None], capsys: pytest.CaptureFixture[str]
+) -> None:
+    uses = re.compile(r"uses calibration version (\d+) \((\w+\.json)\)")
+    seen = set()
+    for cut in range(50):
+        root = tmp_path / f"ecu{cut}"
+        flash.flash_calibration(root, write_calibration(tmp_path / "c1.json", 1))
+        flash.flash_calibration(root, write_calibration(tmp_path / "c2.json", 2))
+        c3 = write_calibration(tmp_path / "c3.json", 3)
+        capsys.readouterr()
+        eio_at(cut)
+        rc = flash.main(["--store", str(root), "--calibration", str(c3)])
+        eio_at(-1)
+        err = capsys.readouterr().err
+        choice = store.usable_calibration(root)
+        assert choice.calibration is not None and choice.path is not None, f"cut {cut}: no usable calibration"
+        if rc == 0:
+            assert choice.calibration.version == 3
+            break
+        assert rc == 1 and len(err.splitlines()) == 1 and "EIO" in err, (cut, err)
+        said = uses.search(err)
+        assert said is not None, (cut, err)
+        assert (choice.calibration.version, choice.path.name) == (int(said[1]), said[2]), (cut, err)
+        if "version 3 committed" in err:
+            seen.add("committed")
+            assert choice.calibration.version == 3
+        else:
+            seen.add("not committed")
+            assert "calibration version 3 was not committed" in err and choice.calibration.version == 2
+        flash.flash_calibration(root, c3)
+        assert store.usable_calibration(root).calibration.version == 3  # type: ignore[union-attr]
+    else:
+        pytest.fail("the flash never completed")
+    assert seen == {"committed", "not committed"}
+
+
+def test_trust_change_io_error_is_one_line(
+    tmp_path: Path, eio_at: Callable[[int], None], capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = store.init_store(tmp_path / "ecu").root
+    eio_at(0)
+    assert flash.main(["--store", str(root), "--allow-unsigned"]) == 1
+    eio_at(-1)
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {root / 'trust.json'}: writing failed: EIO") and "nothing committed" in err
+    assert store.read_trust(root) is None

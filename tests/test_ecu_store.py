@@ -1,7 +1,9 @@
-"""The ECU store: atomic writes, layout, boot record, manifests, boot status, calibration choice."""
+"""The ECU store: atomic writes (and what an I/O error after the rename means), layout and its
+versions, boot record and its history, manifests, boot status with health, calibration choice."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -14,7 +16,7 @@ from hypothesis import strategies as st
 import bywire.ecu
 from bywire.ecu import store
 from bywire.ecu.calibration import calibration_from_dict, calibration_to_dict, dumps_calibration
-from bywire.ecu.store import BootRecord, ImageManifest, StoreError
+from bywire.ecu.store import BootEntry, BootRecord, DirSyncError, ImageManifest, StoreError
 from bywire.protocol.ecu_types import EcuState
 
 PASSAT = Path(bywire.ecu.__path__[0]) / "calibrations" / "passat.json"
@@ -66,10 +68,51 @@ def test_write_atomic_crash_before_rename_keeps_old_file(
         raise OSError("power cut")
 
     monkeypatch.setattr(os, "replace", power_cut)
-    with pytest.raises(OSError, match="power cut"):
+    with pytest.raises(OSError, match="power cut") as e:
         store.write_atomic(target, b"new")
+    assert not isinstance(e.value, DirSyncError), "before the rename: not done at all"
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["f.json"], "the temp file must not be left behind"
+
+
+def test_write_atomic_io_error_while_writing_leaves_the_old_file_and_no_temp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    target = tmp_path / "f.json"
+    store.write_atomic(target, b"old")
+
+    def full(fd: int, data: object) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "write", full)
+    with pytest.raises(OSError) as e:
+        store.write_atomic(target, b"new")
+    assert store.os_error_text(e.value) == "ENOSPC (No space left on device)"
+    assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["f.json"]
+
+
+def test_write_atomic_dir_fsync_error_after_the_rename_is_a_dir_sync_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    target = tmp_path / "f.json"
+    store.write_atomic(target, b"old")
+    calls: list[int] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        calls.append(fd)
+        if len(calls) == 2:  # the first is the file's, the second the directory's
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    with pytest.raises(DirSyncError) as e:
+        store.write_atomic(target, b"new")
+    assert e.value.errno == errno.EIO
+    assert target.read_bytes() == b"new", "renamed: every reader sees the new file"
+    calls.clear()
+    store.write_atomic(target, b"volatile", durable=False)
+    assert calls == [] and target.read_bytes() == b"volatile"
 
 
 # --- layout -------------------------------------------------------------------------------------
@@ -90,6 +133,18 @@ def test_init_store_refuses_a_non_empty_foreign_directory(tmp_path: Path) -> Non
     with pytest.raises(StoreError, match="not an ECU store"):
         store.init_store(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis.tex"]
+
+
+def test_layout_1_stores_open_without_trust_and_unknown_layouts_are_refused(tmp_path: Path) -> None:
+    lay = store.init_store(tmp_path / "s")
+    assert store.store_layout_version(lay.root) == store.STORE_LAYOUT_VERSION == 2
+    lay.marker.write_text(json.dumps({"format": store.STORE_FORMAT, "layout": 1}))
+    assert store.open_store(lay.root).root == lay.root and store.read_trust(lay.root) is None
+    store.write_trust(lay.root, store.TrustPolicy(allow_unsigned=True))
+    assert store.store_layout_version(lay.root) == 2
+    lay.marker.write_text(json.dumps({"format": store.STORE_FORMAT, "layout": 3}))
+    with pytest.raises(StoreError, match=r"store\.json: layout: expected one of \[1, 2\], got 3"):
+        store.open_store(lay.root)
 
 
 def test_open_store_names_the_bad_marker(tmp_path: Path) -> None:
@@ -118,6 +173,16 @@ def test_clean_staging_removes_leftovers_of_a_killed_flash(tmp_path: Path) -> No
 slots = st.sampled_from(store.SLOTS)
 
 
+boot_entries = st.builds(
+    BootEntry,
+    slot=slots,
+    version=st.text(max_size=20),
+    started_unix=st.floats(0, 4e9, allow_nan=False),
+    end=st.sampled_from(store.BOOT_ENDS),
+    code=st.none() | st.integers(-255, 255),
+)
+
+
 @st.composite
 def boot_records(draw: st.DrawFn) -> BootRecord:
     active = draw(slots)
@@ -129,6 +194,7 @@ def boot_records(draw: st.DrawFn) -> BootRecord:
         state=draw(st.sampled_from(["confirmed", "trial"])),
         trial_boots=draw(st.integers(0, 10)),
         rejected=rejected,
+        history=tuple(draw(st.lists(boot_entries, max_size=store.HISTORY_LEN))),
     )
 
 
@@ -138,9 +204,40 @@ def test_boot_record_round_trips(record: BootRecord) -> None:
     assert BootRecord.from_dict(json.loads(json.dumps(record.to_dict())), "boot.json") == record
 
 
+def test_a_boot_json_from_before_the_history_still_loads() -> None:
+    old = {"active": "b", "previous": "a", "state": "trial", "trial_boots": 1, "rejected": {}}
+    record = BootRecord.from_dict(old, "boot.json")
+    assert record == BootRecord(active="b", previous="a", state="trial", trial_boots=1)
+    assert record.history == () and record.to_dict()["version"] == store.BOOT_RECORD_VERSION
+
+
+def test_the_history_keeps_the_last_boots_and_forgets_a_reflashed_slot() -> None:
+    record = BootRecord(active="a")
+    for i in range(store.HISTORY_LEN + 3):
+        record = record.with_boot(BootEntry("a" if i % 2 else "b", "v", float(i)))
+    assert (
+        len(record.history) == store.HISTORY_LEN and record.history[-1].started_unix == store.HISTORY_LEN + 2
+    )
+    assert {e.slot for e in record.without_slot_history("b").history} == {"a"}
+
+
 @pytest.mark.parametrize(
     ("change", "field"),
     [
+        ({"version": 3}, "version"),
+        ({"history": {}}, "history"),
+        (
+            {"history": [{"slot": "a", "version": "v", "started_unix": 1.0, "end": "exploded"}]},
+            "history[0].end",
+        ),
+        (
+            {"history": [{"slot": "a", "version": "v", "started_unix": "now", "end": "failed"}]},
+            "history[0].started_unix",
+        ),
+        (
+            {"history": [{"slot": "a", "version": "v", "started_unix": 1, "end": "failed", "code": "x"}]},
+            "history[0].code",
+        ),
         ({"active": "c"}, "active"),
         ({"previous": "a"}, "previous"),  # equal to active
         ({"state": "maybe"}, "state"),
@@ -192,6 +289,9 @@ def test_verify_image_catches_a_flipped_byte_and_a_truncation(tmp_path: Path) ->
     content = bytes(range(256)) * 8
     fake_slot(root, "a", content)
     store.write_boot_record(root, BootRecord(active="a"))
+    # No trust policy yet: nothing verifies, however intact.
+    assert "no firmware trust policy" in (store.slot_usable(root, "a") or "")
+    store.write_trust(root, store.TrustPolicy(allow_unsigned=True))
     slot, path, manifest = store.active_image(root)
     assert slot == "a" and path.read_bytes() == content and manifest.size_bytes == len(content)
 
@@ -222,6 +322,35 @@ def test_report_boot_round_trip_with_own_pid(tmp_path: Path) -> None:
     assert status is not None and status.state is EcuState.OFF
     store.clear_boot_status(root)
     assert store.read_boot_status(root) is None
+
+
+def test_report_boot_carries_health_and_a_sequence_number(tmp_path: Path) -> None:
+    root = store.init_store(tmp_path / "s").root
+    store.report_boot(
+        root, "READY", healthy_s=12.3456, host_link_up=True, internal_faults=2, unsigned_store=True
+    )
+    first = store.read_boot_status(root)
+    assert first is not None
+    assert (first.healthy_s, first.host_link_up, first.internal_faults, first.unsigned_store) == (
+        12.346,
+        True,
+        2,
+        True,
+    )
+    store.report_boot(root, "READY")
+    second = store.read_boot_status(root)
+    assert second is not None and second.seq == first.seq + 1 and not second.host_link_up
+
+
+def test_a_boot_status_from_before_health_reads_as_unhealthy(tmp_path: Path) -> None:
+    lay = store.init_store(tmp_path / "s")
+    lay.boot_status.write_text(json.dumps({"pid": 7, "state": "READY", "t_unix": 1.0}))
+    status = store.read_boot_status(lay.root)
+    assert status == store.BootStatus(pid=7, state=EcuState.READY, t_unix=1.0)
+    assert status.healthy_s == 0.0 and not status.host_link_up
+    lay.boot_status.write_text(json.dumps({"pid": 7, "state": "READY", "t_unix": 1.0, "healthy_s": -1}))
+    with pytest.raises(StoreError, match="healthy_s"):
+        store.read_boot_status(lay.root)
 
 
 def test_report_boot_refuses_unknown_state(tmp_path: Path) -> None:
@@ -261,7 +390,9 @@ def test_store_status_summarises(tmp_path: Path) -> None:
     fake_slot(root, "a", b"image-a", version="v-a")
     store.write_boot_record(root, BootRecord(active="a"))
     store.write_atomic(store.current_calibration_path(root), calibration_bytes(4))
+    store.write_trust(root, store.TrustPolicy(allow_unsigned=True))
     status = store.store_status(root)
+    assert status["trust"] == {"allow_unsigned": True, "keys": []}
     assert status["boot"]["active"] == "a"
     assert status["slots"]["a"] == {"usable": True, "version": "v-a"}
     assert status["slots"]["b"] == {"empty": True}
