@@ -178,8 +178,9 @@ def steer_step(prev_rad: float, request_rad: float, dt_s: float, cal: Calibratio
 
 
 def _cell(xs: tuple[float, ...], x: float) -> tuple[int, float]:
-    """Lower index and weight of x on a strictly increasing grid, clamped to its ends."""
-    if x <= xs[0]:
+    """Lower index and weight of x on a strictly increasing grid, clamped to its ends (NaN: the
+    low end, so that no value at all can index outside the grid)."""
+    if not x > xs[0]:
         return 0, 0.0
     n = len(xs)
     if x >= xs[-1]:
@@ -366,7 +367,8 @@ def controller_cycle(
     # rest is disturbance or model error for the integrator.
     tau = cal.brake_lag_s if pedal == _BRAKE else cal.throttle_lag_s
     a_ref = st.accel_ref_mps2
-    a_ref += (a_tgt - a_ref) * (dt / (tau + dt))
+    if dt > 0.0:  # a step whose time does not advance moves nothing (and a lag of 0 divides by dt)
+        a_ref += (a_tgt - a_ref) * (dt / (tau + dt))
 
     # Integrate with last cycle's pedal: its saturation is what this cycle's measurement shows.
     if closed_loop and not holding and pedal != _NONE:

@@ -11,10 +11,33 @@ One cycle (`EcuApp.step`), every millisecond on an absolute deadline:
 
 Seed 000 section 2.1 / seed 003 section II-d: the ECU runs the low-level controller and is the
 safety authority; the host only asks. Imports: protocol, clock and the ECU's own modules only.
+
+What the application adds to the pure core's rules (ecu.safety's docstring), DESIGN section 4:
+
+- Loop stall. A gap between the starts of two cycles on the ECU's own clock longer than
+  `LOOP_STALL_MAX_GAP_S` (two DBW_Command periods, 20 ms) is the stop fault LOOP_STALL by itself,
+  whatever the inputs look like afterwards: for that long the gateway ran on a command nobody had
+  re-judged, and at least one command period went by without a command. The gateway trusts a
+  command for five periods (50 ms), so the ECU calls a stall before the gateway would give up on
+  it. A longer stall is therefore never judged safer than a shorter one; the inputs that arrived
+  before or during it are judged by their receive time (the buses' stamps), not by the poll.
+- Internal error. An exception anywhere inside a cycle never kills the process: the cycle sends the
+  transmit guard's replacement command and the next cycle's core sees INTERNAL_ERROR (a stop fault).
+- Transmit guard (ecu.tx_guard). Every DBW_Command passes it right before `bus.send`; a refused one
+  is replaced and the next cycle's core sees TX_GUARD (a stop fault).
+- The three events count in `internal_fault_events`, which the boot supervisor reads as health.
+- E-stop frames in an error streak (corrupt, repeated, out of order) make the radio stale, exactly
+  as a silent radio: a stuck transmitter that repeats its last frame is caught within its timeout.
+- The service unlatch (SDO 0x2300sub1) is refused with an abort and a reason unless the ECU is
+  DISABLED and the radio is heard saying RUN or PAUSE; accepted, it is the second factor of the
+  re-arm, which the safety driver's arm button completes.
+- Watchdog times (0x1016, 0x1017, 0x1400sub5, TPDO event timers) and calibrations cannot be
+  written while the ECU actuates (ENGAGED, PAUSED, SAFE_STOP, DISABLED).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +56,7 @@ from bywire.ecu.calibration import (
 from bywire.ecu.core import ActuatorCommand, CoreState, core_step, initial_core_state
 from bywire.ecu.executive import CycleStats
 from bywire.ecu.safety import EcuInputs
+from bywire.ecu.tx_guard import TxGuard
 from bywire.protocol.canopen_node import ABORT_DEVICE_STATE, EcuNode, RefusedWrite
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, Gear, RequestFlags
 from bywire.protocol.host_link import EcuStatus, next_counter
@@ -52,6 +76,11 @@ from bywire.protocol.vehicle_can import (
 VEHICLE_REPORTS = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
 VEHICLE_TIMEOUT_CYCLES = 10.0
 VEHICLE_MAX_AGE_CYCLES = 5.0
+# Two DBW_Command periods (GenMsgCycleTime 10 ms): see the module docstring.
+LOOP_STALL_MAX_GAP_S = 0.020
+# States in which the ECU actuates: calibrations and watchdog times are fixed then.
+ACTUATING = frozenset({EcuState.ENGAGED, EcuState.PAUSED, EcuState.SAFE_STOP, EcuState.DISABLED})
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -105,9 +134,21 @@ class EcuApp:
             clock,
             on_calibration_write=self._calibration_written,
             on_unlatch=self._unlatch_requested,
+            actuating=self._actuating_state,
         )
         self.core: CoreState = initial_core_state(clock.now())
+        self.guard = TxGuard(self._core_cal)
         self._unlatch_pending = False
+        # Events of the last cycle that the core judges in the next one (ecu.safety's inputs).
+        self._stall_pending = False
+        self._internal_pending = False
+        self._guard_pending = False
+        self.internal_fault_events = 0  # loop stalls, exceptions in a cycle, guard trips, since boot
+        self.loop_stalls = 0
+        self.cycle_exceptions = 0
+        self.last_exception: str | None = None
+        self.max_cycle_gap_s = 0.0
+        self._last_cycle_s: float | None = None  # clock time at the start of the last cycle
         self._last_inputs: EcuInputs | None = None
         self._inputs_valid_until_s = -math.inf
         self._next_command_s = -math.inf
@@ -118,14 +159,13 @@ class EcuApp:
 
     # -- SDO hooks (run inside node.poll, i.e. inside the cycle) ----------------------------------
 
+    def _actuating_state(self) -> str | None:
+        state = self.core.safety.state
+        return state.name if state in ACTUATING else None
+
     def _calibration_written(self, data: bytes) -> int:
         """A new calibration over SDO: validated before anything changes; refused while actuating."""
-        if self.core.safety.state in (
-            EcuState.ENGAGED,
-            EcuState.PAUSED,
-            EcuState.SAFE_STOP,
-            EcuState.DISABLED,
-        ):
+        if self.core.safety.state in ACTUATING:
             raise RefusedWrite(
                 "calibration can only be written while the ECU is not actuating (OFF/READY/MANUAL)",
                 ABORT_DEVICE_STATE,
@@ -135,15 +175,72 @@ class EcuApp:
             self._on_calibration(data, cal)  # persist first: a calibration that was not stored is not used
         self.calibration = cal
         self._core_cal = cal
+        self.guard.cal = cal
         self.calibration_error = None
         return cal.version
 
     def _unlatch_requested(self) -> None:
+        """The service tool's unlatch: refused (with a true reason) unless it can count."""
+        state = self.core.safety.state
+        if state != EcuState.DISABLED:
+            raise RefusedWrite(
+                f"nothing to unlatch: the ECU is {state.name}, not DISABLED", ABORT_DEVICE_STATE
+            )
+        estop = self._estop.state.last_frame
+        now = self.clock.now()
+        if not isinstance(estop, EstopRadio) or not self._estop_heard(now):
+            raise RefusedWrite(
+                "unlatch refused: the E-stop radio is not heard; the ECU stays DISABLED", ABORT_DEVICE_STATE
+            )
+        if estop.mode == EstopMode.DISABLE:
+            raise RefusedWrite(
+                "unlatch refused: the E-stop radio still says DISABLE; the ECU stays DISABLED",
+                ABORT_DEVICE_STATE,
+            )
         self._unlatch_pending = True
+
+    def _estop_heard(self, now_s: float) -> bool:
+        """The E-stop radio's last frame is within its timeout and not in an error streak."""
+        estop = self._estop
+        return not estop.timed_out(now_s) and estop.state.error_streak < self.config.corrupt_streak
 
     # -- one cycle --------------------------------------------------------------------------------
 
     def step(self, now_s: float) -> None:
+        """One cycle. Never raises: an exception inside it is the stop fault INTERNAL_ERROR."""
+        started = self.clock.now()
+        last = self._last_cycle_s
+        self._last_cycle_s = started
+        if last is not None:
+            gap = started - last
+            if gap > self.max_cycle_gap_s:
+                self.max_cycle_gap_s = gap
+            if gap > LOOP_STALL_MAX_GAP_S:
+                self._stall_pending = True
+                self.loop_stalls += 1
+                self.internal_fault_events += 1
+        try:
+            self._cycle(now_s)
+        except Exception as exc:  # the car brakes and holds; the process lives on to say why
+            self._cycle_failed(now_s, exc)
+
+    def _cycle_failed(self, now_s: float, exc: Exception) -> None:
+        self.cycle_exceptions += 1
+        self.internal_fault_events += 1
+        self._internal_pending = True
+        self.last_exception = f"{type(exc).__name__}: {exc}"
+        if self.cycle_exceptions <= 10 or self.cycle_exceptions % 1000 == 0:  # a log, not a flood
+            log.error("ECU cycle at %.3f s raised (%d so far): %r", now_s, self.cycle_exceptions, exc)
+        try:
+            gear = self._motion.state.last_frame
+            engaged = gear.gear_engaged if isinstance(gear, Motion) else Gear.DRIVE
+            frame = self.guard.replacement(self.core.safety.state, engaged, now_s)
+            self.vehicle_bus.send(self.tx.encode(frame, timestamp_s=now_s))
+            self._next_command_s = now_s + self.config.command_period_s
+        except Exception:  # the bus itself is gone: nothing more can be said on it this cycle
+            log.exception("ECU could not send the replacement command")
+
+    def _cycle(self, now_s: float) -> None:
         bus = self.vehicle_bus
         rx = self.rx
         received = 0
@@ -163,11 +260,17 @@ class EcuApp:
             or now_s > self._inputs_valid_until_s
             or self.stats.overrun_streak != inputs.overrun_streak
             or self._unlatch_pending != inputs.unlatch
+            or self._stall_pending != inputs.loop_stall
+            or self._internal_pending != inputs.internal_error
+            or self._guard_pending != inputs.tx_guard_trip
         ):
             inputs = self._last_inputs = self._inputs(now_s)
-        self._unlatch_pending = False
         self.core, cmd = core_step(self.core, inputs, now_s, self._core_cal)
+        # The core has judged these events: each counts once.
+        self._unlatch_pending = self._stall_pending = self._internal_pending = self._guard_pending = False
         self.last_command = cmd
+        guard = self.guard
+        guard.note_cycle(cmd.steer_enable)
         if now_s >= self._next_command_s:
             self._next_command_s = max(self._next_command_s + self.config.command_period_s, now_s)
             frame = DbwCommand(
@@ -181,6 +284,12 @@ class EcuApp:
                 ecu_state=cmd.state,
                 gear_request=cmd.gear_request,
             )
+            frame, refused = guard.guard(frame, cmd.state, inputs.gear_engaged, now_s)
+            if refused is not None:
+                self._guard_pending = True
+                self.internal_fault_events += 1
+                if guard.trips <= 10 or guard.trips % 1000 == 0:
+                    log.error("transmit guard refused the command at %.3f s: %s", now_s, refused)
             bus.send(self.tx.encode(frame, timestamp_s=now_s))
         if now_s >= self._next_status_s:
             self._next_status_s = max(self._next_status_s + self.config.status_period_s, now_s)
@@ -210,6 +319,7 @@ class EcuApp:
                 horizon = t + monitor.timeout_s - 1e-6
             if state.error_streak >= streak and monitor is not self._estop:
                 vehicle_corrupt = True
+
         self._inputs_valid_until_s = horizon
         wheels = self._wheels.state.last_frame
         motion = self._motion.state.last_frame
@@ -219,17 +329,17 @@ class EcuApp:
         node = self.node
         request = node.latest_request()
         req = request[0] if request is not None else None
-        brake_pressed, throttle_pct = (
-            (driver.brake_pedal_pressed, driver.throttle_pedal_pct)
+        brake_pressed, throttle_pct, arm = (
+            (driver.brake_pedal_pressed, driver.throttle_pedal_pct, driver.safety_arm)
             if isinstance(driver, DriverInputs)
-            else (False, 0.0)
+            else (False, 0.0, False)
         )
         steer_torque, steer_angle = (
             (steer.steer_torque_nm, steer.steer_angle_rad) if isinstance(steer, SteerReport) else (0.0, 0.0)
         )
         return EcuInputs(
             estop_mode=estop.mode if isinstance(estop, EstopRadio) else EstopMode.INVALID,
-            estop_fresh=not self._estop.timed_out(now_s),
+            estop_fresh=self._estop_heard(now_s),
             host_alive=node.host_alive(now_s),
             request_accel_mps2=req.accel_mps2 if req is not None else 0.0,
             request_steer_angle_rad=req.steer_angle_rad if req is not None else 0.0,
@@ -248,6 +358,10 @@ class EcuApp:
             unlatch=self._unlatch_pending,
             gear_engaged=motion.gear_engaged if isinstance(motion, Motion) else Gear.DRIVE,
             wheel_speed_max_mps=wheels.max_mps if isinstance(wheels, WheelSpeeds) else math.inf,
+            safety_arm=arm,
+            loop_stall=self._stall_pending,
+            internal_error=self._internal_pending,
+            tx_guard_trip=self._guard_pending,
         )
 
     def _status(self, inputs: EcuInputs, cmd: Any) -> EcuStatus:
@@ -269,6 +383,18 @@ class EcuApp:
 
     def rx_stats(self) -> dict[str, Any]:
         return self.rx.stats()
+
+    def health_summary(self) -> dict[str, Any]:
+        """The ECU's own health since boot, for reports: stalls, exceptions, guard trips."""
+        return {
+            "internal_fault_events": self.internal_fault_events,
+            "loop_stalls": self.loop_stalls,
+            "max_cycle_gap_ms": round(self.max_cycle_gap_s * 1e3, 3),
+            "cycle_exceptions": self.cycle_exceptions,
+            "last_exception": self.last_exception,
+            "tx_guard_trips": self.guard.trips,
+            "tx_guard_last_reason": self.guard.last_reason,
+        }
 
 
 # -- calibration for a run ---------------------------------------------------------------------------
@@ -327,12 +453,19 @@ def main(argv: list[str] | None = None) -> int:
 
     from bywire.clock import WallClock
     from bywire.ecu.executive import CyclicExecutive
+    from bywire.ecu.health import FIRST_REPORT_CYCLES, SAMPLE_CYCLES, BootHealth
     from bywire.ecu.realtime import apply_realtime
+    from bywire.ecu.store import os_error_text, report_boot
     from bywire.protocol.bus_url import open_bus
 
     parser = argparse.ArgumentParser(prog="bywire ecu run", description="run the ECU firmware at 1 kHz")
     add_run_arguments(parser)
+    # Passed by the boot supervisor only (not a `bywire ecu run` option): the store this image was
+    # booted from accepts unsigned firmware, so what runs here may be anybody's build.
+    parser.add_argument("--unsigned-store", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.unsigned_store:
+        print(f"ecu: !!! booted from a store that accepts UNSIGNED firmware ({args.store})", flush=True)
     cal: Calibration | None
     cal_error: str | None
     if args.no_calibration:
@@ -370,20 +503,39 @@ def main(argv: list[str] | None = None) -> int:
     executive = CyclicExecutive(0.001, clock, app.step, stats)
     end = clock.now() + args.seconds if args.seconds is not None else math.inf
     booted = False
+    report_failed = False
+    health = BootHealth()
 
     def progress(cycles: int) -> None:
-        nonlocal booted
-        if booted or cycles < 20:
+        # Called after every 1 ms cycle: returns at once on all but one cycle in SAMPLE_CYCLES.
+        nonlocal booted, report_failed
+        if cycles < FIRST_REPORT_CYCLES or (booted and cycles % SAMPLE_CYCLES):
             return
-        booted = True
+        now = clock.now()
+        faults = app.internal_fault_events
+        health.sample(now, app.node.host_alive(now), faults)
         state = app.core.safety.state
-        if args.store is not None:
-            from bywire.ecu.store import report_boot
-
-            report_boot(args.store, state.name)
-        print(f"ecu: running, state {state.name}", flush=True)
-        if args.ready_line:
-            print("ready", flush=True)
+        if args.store is not None and health.report_due(now):
+            try:
+                report_boot(
+                    args.store,
+                    state.name,
+                    healthy_s=health.healthy_s,
+                    host_link_up=health.host_link_up,
+                    internal_faults=health.internal_faults,
+                    unsigned_store=args.unsigned_store,
+                )
+            except OSError as exc:
+                # The ECU keeps running: without its reports a trial image is not confirmed (and
+                # the supervisor rolls it back), but a confirmed one must not stop over a status file.
+                if not report_failed:
+                    report_failed = True
+                    print(f"ecu: !!! cannot write the boot status: {os_error_text(exc)}", flush=True)
+        if not booted:
+            booted = True
+            print(f"ecu: running, state {state.name}", flush=True)
+            if args.ready_line:
+                print("ready", flush=True)
 
     try:
         executive.run(stop=lambda: stopping or clock.now() >= end, progress=progress)
@@ -392,6 +544,7 @@ def main(argv: list[str] | None = None) -> int:
         snapshot["scheduler"] = scheduler
         snapshot["final_state"] = app.core.safety.state.name
         snapshot["vehicle_rx"] = app.rx_stats()["total"]
+        snapshot["health"] = app.health_summary()
         if args.stats_json is not None:
             args.stats_json.parent.mkdir(parents=True, exist_ok=True)
             args.stats_json.write_text(json.dumps(snapshot, indent=2) + "\n", encoding="utf-8")
@@ -402,6 +555,15 @@ def main(argv: list[str] | None = None) -> int:
             f"max {late['max']:.0f} us",
             flush=True,
         )
+        if app.internal_fault_events:
+            h = snapshot["health"]
+            print(
+                f"ecu: !!! {app.internal_fault_events} internal faults: {h['loop_stalls']} loop stalls "
+                f"(largest gap {h['max_cycle_gap_ms']:.1f} ms), {h['cycle_exceptions']} exceptions "
+                f"({h['last_exception']}), {h['tx_guard_trips']} commands refused by the transmit guard "
+                f"({h['tx_guard_last_reason']})",
+                flush=True,
+            )
         vehicle_bus.shutdown()
         host_bus.shutdown()
     return 0

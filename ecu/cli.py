@@ -1,4 +1,5 @@
-"""`bywire ecu ...`: run the firmware (from the installation or from a flashed store) and flash it.
+"""`bywire ecu ...`: run the firmware (from the installation or from a flashed store), flash it, and
+make and use the keys that sign it (`keygen`, `sign`; docs/firmware_store.md).
 
 This module is also what a firmware image's `run` dispatches to, so it imports only the ECU and
 the protocol (never host or HIL code).
@@ -21,14 +22,31 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="ecu_command", required=True, metavar="COMMAND")
     run = sub.add_parser("run", help="run the ECU at 1 kHz (from a flashed store with --store)")
     app.add_run_arguments(run)
-    run.add_argument(
-        "--ready-timeout",
-        dest="ready_timeout_s",
-        type=float,
-        default=boot.DEFAULT_READY_TIMEOUT_S,
-        help="with --store: seconds a newly flashed image has to come up before falling back",
+    boot.add_supervisor_arguments(run)
+    flash.add_flash_arguments(
+        sub.add_parser("flash", help="write signed firmware, a calibration and/or trusted keys into a store")
     )
-    flash.add_flash_arguments(sub.add_parser("flash", help="write firmware and/or calibration into a store"))
+    keygen = sub.add_parser("keygen", help="make a new Ed25519 key pair for signing firmware")
+    keygen.add_argument(
+        "--out", required=True, type=Path, help="directory for the private (0600) and public key PEM files"
+    )
+    sign = sub.add_parser(
+        "sign", help="sign a firmware image (or a public key file, to endorse it) with a private key"
+    )
+    sign.add_argument("--key", required=True, type=Path, help="the Ed25519 private key (PEM)")
+    sign.add_argument("file", type=Path, metavar="IMAGE", help="the file to sign (its exact bytes)")
+    sign.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        help="where to write (default IMAGE.sig; with --embed, IMAGE with .signed before its suffix)",
+    )
+    sign.add_argument(
+        "--embed",
+        action="store_true",
+        help="write a copy of the image with the signature inside (its zip comment) instead of IMAGE.sig",
+    )
     unlatch = sub.add_parser(
         "unlatch", help="the manual unlatch of an E-stop DISABLE, over the host link (SDO)"
     )
@@ -54,22 +72,80 @@ def main(argv: Sequence[str] | None = None) -> int:
         from bywire.ecu.flash import cmd_flash
 
         return cmd_flash(args)
+    if args.ecu_command == "keygen":
+        return _keygen(args.out)
+    if args.ecu_command == "sign":
+        return _sign(args.key, args.file, args.output, embed=args.embed)
     if args.ecu_command == "unlatch":
         return _service(args.host_link, args.timeout, "unlatch", None)
     if args.ecu_command == "calibrate":
         return _service(args.host_link, args.timeout, "calibrate", args.calibration)
     if args.store is not None:
-        from bywire.ecu.boot import cmd_run_from_store
+        from bywire.ecu.boot import SUPERVISOR_OPTIONS, cmd_run_from_store
 
-        # The image's app gets every option but the boot loader's own.
+        # The image's app gets every option but the boot loader's own (and the buses, which
+        # cmd_run_from_store forwards itself).
         app_args = _strip_options(
-            argv[1:], {"--store": True, "--ready-timeout": True, "--vehicle-bus": True, "--host-link": True}
+            argv[1:], {**SUPERVISOR_OPTIONS, "--vehicle-bus": True, "--host-link": True}
         )
         args.app_args = app_args
         return cmd_run_from_store(args)
     from bywire.ecu.app import main as app_main
 
-    return app_main(argv[1:])
+    # Without --store there is no supervisor: its options must not reach the app's parser.
+    return app_main(_strip_options(argv[1:], {"--ready-timeout": True, "--confirm-after": True}))
+
+
+def _keygen(out: Path) -> int:
+    """`bywire ecu keygen --out DIR`: a new key pair; refuses to overwrite one."""
+    from bywire.ecu.signing import SigningError, generate_key_pair
+
+    try:
+        private, public, kid = generate_key_pair(out)
+    except SigningError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(f"private key: {private} (mode 0600; keep it secret, sign with `bywire ecu sign --key {private}`)")
+    print(
+        f"public key:  {public} (key id {kid};"
+        f" trust it with `bywire ecu flash --store DIR --trust-key {public}`)"
+    )
+    return 0
+
+
+def _sign(key_path: Path, path: Path, output: Path | None, *, embed: bool) -> int:
+    """`bywire ecu sign --key PRIVATE.pem FILE [-o OUT] [--embed]`: a detached signature of FILE's
+    exact bytes (64 raw bytes), or with --embed a copy of the image carrying it in its zip comment."""
+    from bywire.ecu.signing import SigningError, embed_signature, load_signing_key
+    from bywire.ecu.store import os_error_text, write_atomic
+
+    if output is None:
+        output = (
+            path.with_name(f"{path.stem}.signed{path.suffix}")
+            if embed
+            else path.with_name(path.name + ".sig")
+        )
+    try:
+        key = load_signing_key(key_path)
+        try:
+            data = path.read_bytes()
+        except OSError as e:
+            raise SigningError(f"{path}: cannot read: {os_error_text(e)}") from None
+        signature = key.sign(data)
+        try:
+            out_data = embed_signature(data, signature) if embed else signature
+        except SigningError as e:
+            raise SigningError(f"{path}: {e}") from None
+        try:
+            write_atomic(output, out_data)
+        except OSError as e:
+            raise SigningError(f"{output}: cannot write: {os_error_text(e)}") from None
+    except SigningError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    what = "signed image" if embed else "signature"
+    print(f"{what}: {output} ({path} signed with key {key.public.key_id})")
+    return 0
 
 
 def _strip_options(argv: list[str], takes_value: dict[str, bool]) -> list[str]:
@@ -126,7 +202,10 @@ def _service(url: str, timeout_s: float, what: str, calibration: Path | None) ->
     finally:
         bus.shutdown()
     if calibration is None:
-        print("unlatch acknowledged; the ECU leaves DISABLED once the E-stop radio no longer says DISABLE")
+        print(
+            "unlatch acknowledged: the ECU leaves DISABLED when the safety driver presses the arm "
+            "button on the car (the unlatch alone never re-arms it)"
+        )
     else:
         print(f"calibration {calibration} accepted by the ECU")
     return 0

@@ -10,7 +10,10 @@ What each state commands (`ActuatorCommand`):
 - OFF, READY, MANUAL: passive. engage off, no throttle, no brake, no steering; the controller is
   reset and follows the measured acceleration and steering angle so that engaging is bumpless.
 - ENGAGED: the host's request through the acceleration controller (clamp, jerk limit, feedforward
-  maps, integrator); steering clamped and rate-limited while the STEER flag is set.
+  maps, integrator); steering clamped and rate-limited while the STEER flag is set. Entered from
+  the hold of a SAFE_STOP (re-armed with REARM and ENGAGE together) the integrator starts at zero
+  as from READY and the target from where the stop left it (jerk-limited across the switch), the
+  hold kept until the target rises above zero.
 - PAUSED, SAFE_STOP, DISABLED (stops): the controller's target goes, jerk-limited, to -d with
   d = pause_decel (PAUSED), safe_stop_decel (SAFE_STOP) or disable_decel (DISABLED), the largest
   that applies (a SAFE_STOP while the radio says PAUSE stops at least as hard as a pause), and
@@ -111,6 +114,7 @@ _HOLD, _NONE = PedalMode.HOLD, PedalMode.NONE
 _ESTOP_PAUSE = int(Fault.ESTOP_PAUSE)
 _ENGAGED = EcuState.ENGAGED
 _PAUSED = EcuState.PAUSED
+_SAFE_STOP = EcuState.SAFE_STOP
 _DISABLED = EcuState.DISABLED
 _INF = math.inf
 
@@ -288,6 +292,15 @@ def core_step(
     # position (field order of ActuatorCommand, named in the comments): building these objects is
     # most of a cycle's cost, and keywords cost almost as much again.
     if s == _ENGAGED:
+        ctl_prev = st.controller
+        if st.safety.state == _SAFE_STOP:
+            # Re-armed straight from the hold: the integrator starts afresh as from READY, the target
+            # from where the stop left it (the jerk limit holds across the switch), so the hold stays
+            # on until the target has risen above zero.
+            target = ctl_prev.accel_target_mps2
+            ctl_prev = controller_passive(ctl_prev.t_s, accel_along if ok else 0.0, cal)._replace(
+                accel_target_mps2=target, accel_ref_mps2=target
+            )
         wanted = verdict.wanted_gear
         gear_req = st.gear_request if st.safety.state == _ENGAGED else engaged_gear
         shifting = not (wanted == gear_req == engaged_gear)
@@ -301,7 +314,7 @@ def core_step(
                 if gear_req != wanted and now_s - shift_hold_s >= SHIFT_BRAKE_SETTLE_S:
                     gear_req = wanted
             ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
-                st.controller,
+                ctl_prev,
                 now_s,
                 -SHIFT_DECEL_MPS2,  # accel_request_mps2
                 accel_along,  # accel_meas_mps2
@@ -319,7 +332,7 @@ def core_step(
                 if a_req > a_lim:
                     a_req = a_lim
             ctl, thr, brk, pedal, a_tgt, a_cmd, integ = controller_cycle(
-                st.controller,
+                ctl_prev,
                 now_s,
                 a_req,
                 accel_along,

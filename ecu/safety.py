@@ -6,32 +6,58 @@ and DARPA Urban Challenge rules 3.4.2 (E-stop RUN / PAUSE / DISABLE); DESIGN sec
 follows opendbc's safety.h: one engage decision that every unhealthy input refuses, evaluated from
 scratch every cycle.
 
+The rules, each there because its absence was found exploitable:
+
+- Only a human re-arms. Leaving DISABLED or MANUAL needs a rising edge of the safety driver's arm
+  button (GW_Driver.SafetyArm), an input the drive-by-wire gateway reports on vehicle CAN, E2E
+  protected, from the car's side: the host software cannot produce it. The service tool's SDO
+  unlatch (0x2300sub1) of a DISABLE remains, as a second factor and never alone.
+- Engagement is an edge, never a level: READY -> ENGAGED needs the host's ENGAGE flag to rise
+  between two accepted requests while every precondition holds. After a latch, a reset or an NMT
+  restart a held ENGAGE engages nothing. Edges of ENGAGE and REARM are taken only between fresh
+  requests (a request that is stale or missing neither sets nor clears them), and edges of the arm
+  button only between usable vehicle reports; at boot all three count as held.
+- A longer stall is never judged safer than a shorter one: a gap between two ECU cycles longer than
+  the firmware's bound is a stop fault by itself (LOOP_STALL, measured by the application).
+- Every watchdog time is bounded by the firmware (protocol.canopen_node MAX_*), and any exception
+  inside a cycle (INTERNAL_ERROR) or a command the transmit guard had to replace (TX_GUARD,
+  ecu.tx_guard) is a stop fault of its own.
+
 States (bywire.protocol.ecu_types.EcuState) and transitions, in priority order each cycle:
 
-1. E-stop DISABLE, from any state (fresh or not: a stale DISABLE is still a DISABLE) -> DISABLED.
-   DISABLED is latched until a rising edge of the manual unlatch input while the radio no longer
-   says DISABLE -> READY (OFF without a valid calibration).
-2. MANUAL (latched driver override) -> READY on a REARM rising edge with no driver input present
-   (seen in usable vehicle data, not assumed from stale data).
+1. E-stop DISABLE, from any state (fresh or not: a stale DISABLE is still a DISABLE) -> DISABLED,
+   which forgets any unlatch given before. DISABLED is latched: while the radio is heard saying RUN
+   or PAUSE (fresh, not DISABLE), a rising edge of the service unlatch is remembered; then a rising
+   edge of the arm button, with usable vehicle data -> READY (OFF without a valid calibration).
+2. MANUAL (latched driver override) -> READY on a rising edge of the arm button with no driver input
+   present (seen in usable vehicle data, not assumed from stale data). The host's REARM does not
+   leave MANUAL.
 3. OFF -> READY as soon as the calibration is valid.
 4. Driver intervention while the ECU actuates (ENGAGED, PAUSED, SAFE_STOP) -> MANUAL at once:
    brake pedal pressed, |steer torque| > driver_torque_threshold_nm, or throttle pedal >
    driver_throttle_threshold_pct (above the pedal sensor's offset and noise; opendbc takes any
    gas press). Driver inputs are only believed while vehicle data is usable; stale or corrupt
    vehicle data is a fault of its own. In READY/OFF a driver input only blocks engaging.
-5. READY: calibration invalid -> OFF; E-stop PAUSE -> PAUSED; all engage preconditions -> ENGAGED.
-6. ENGAGED: a stop fault -> SAFE_STOP; else PAUSE -> PAUSED; else the host dropping ENGAGE ->
-   SAFE_STOP with HOST_STOP_REQUEST (a host that lets go asks for a controlled stop).
-7. PAUSED: a stop fault -> SAFE_STOP; E-stop RUN -> ENGAGED if every engage precondition holds
-   (the host still asks for ENGAGE), else SAFE_STOP with HOST_STOP_REQUEST: the car stays held
-   until the host re-arms it, rather than being released (READY is passive) by the radio alone.
-8. SAFE_STOP -> READY on a REARM rising edge with no active fault at all and at standstill.
+5. READY: calibration invalid -> OFF; E-stop PAUSE -> PAUSED (a pause that began in READY);
+   a rising edge of ENGAGE with no fault at all -> ENGAGED.
+6. ENGAGED: a stop fault -> SAFE_STOP; else PAUSE -> PAUSED (a pause that may resume); else the
+   host dropping ENGAGE -> SAFE_STOP with HOST_STOP_REQUEST (a host that lets go asks for a
+   controlled stop).
+7. PAUSED: a stop fault -> SAFE_STOP; E-stop RUN (fresh) -> for a pause that began ENGAGED:
+   ENGAGED if the host still asks for ENGAGE and no fault is active (DARPA's resume), else
+   SAFE_STOP with HOST_STOP_REQUEST (the car stays held until the host re-arms it rather than being
+   released by the radio alone); for a pause that began in READY: back to READY (it was never
+   engaged, and a resume must not turn a level into an engagement).
+8. SAFE_STOP -> on a rising edge of REARM with no active fault at all and at standstill: ENGAGED if
+   ENGAGE is set in the same request (the REARM edge is the host's act; the held car goes straight
+   back under control, never through a passive cycle with the brakes released), else READY.
 
 Stop faults (`STOP_FAULTS`): host heartbeat lost, host request stale or not finite, vehicle data
-stale, corrupt or not finite, E-stop radio stale or INVALID, an overrun streak of at least
-`OVERRUN_STREAK_LIMIT` cycles, calibration invalid, the host's STOP flag, and a gear the gateway
-never confirmed (GEAR_TIMEOUT: judged by the core from its shift state, `ecu.gear`, and added to
-this cycle's fault bits before the transition).
+stale, corrupt or not finite, E-stop radio stale, INVALID or in an error streak, an overrun streak
+of at least `OVERRUN_STREAK_LIMIT` cycles, a loop stall, an internal error, a transmit-guard trip,
+calibration invalid, the host's STOP flag, and a gear the gateway never confirmed (GEAR_TIMEOUT:
+judged by the core from its shift state, `ecu.gear`, and added to this cycle's fault bits before
+the transition).
 
 `faults_active` are the conditions of this cycle; `latched` is the cause of the current state
 (SAFE_STOP: the stop faults at entry; DISABLED: ESTOP_DISABLE; MANUAL: DRIVER_OVERRIDE; PAUSED:
@@ -83,6 +109,9 @@ _ESTOP_TIMEOUT = int(Fault.ESTOP_TIMEOUT)
 _REQUEST_INVALID = int(Fault.REQUEST_INVALID)
 _HOST_STOP_REQUEST = int(Fault.HOST_STOP_REQUEST)
 _GEAR_TIMEOUT = int(Fault.GEAR_TIMEOUT)
+_LOOP_STALL = int(Fault.LOOP_STALL)
+_INTERNAL_ERROR = int(Fault.INTERNAL_ERROR)
+_TX_GUARD = int(Fault.TX_GUARD)
 
 STOP_FAULTS = Fault(
     _HOST_HEARTBEAT
@@ -94,6 +123,9 @@ STOP_FAULTS = Fault(
     | _CALIBRATION_INVALID
     | _HOST_STOP_REQUEST
     | _GEAR_TIMEOUT
+    | _LOOP_STALL
+    | _INTERNAL_ERROR
+    | _TX_GUARD
 )
 _STOP_FAULTS = int(STOP_FAULTS)
 
@@ -140,24 +172,33 @@ class EcuInputs:
     speed_mps: float  # from GW_WheelSpeeds (mean of the four)
     accel_meas_mps2: float  # GW_Motion.LongAccel (dv/dt, gravity removed)
     steer_angle_meas_rad: float  # GW_Steer.SteerAngleActual (for a bumpless steering engage)
-    unlatch: bool  # the manual E-stop unlatch switch (level; the rising edge counts)
+    unlatch: bool  # the service tool's DISABLE unlatch (SDO 0x2300sub1; the rising edge counts)
     gear_engaged: Gear = Gear.DRIVE  # GW_Motion.GearEngaged: the gear the gateway reports engaged
     # The fastest of the four GW_WheelSpeeds (a shift needs every wheel still); inf: not known, which
     # never counts as standstill.
     wheel_speed_max_mps: float = math.inf
+    safety_arm: bool = False  # GW_Driver.SafetyArm: the safety driver's arm button (level)
+    loop_stall: bool = False  # the gap to the previous cycle exceeded the firmware's bound
+    internal_error: bool = False  # the previous cycle raised: its command came from the fallback
+    tx_guard_trip: bool = False  # the transmit guard replaced the previous command
 
 
 @dataclass(frozen=True, slots=True)
 class SafetyState:
     state: EcuState
     latched: Fault  # cause of the current state
-    rearm_prev: bool  # REARM flag last cycle (edge detection)
+    rearm_prev: bool  # REARM flag of the last fresh request (edge detection)
     unlatch_prev: bool  # unlatch input last cycle
+    engage_prev: bool = True  # ENGAGE flag of the last fresh request (edge detection)
+    arm_prev: bool = True  # arm button in the last usable vehicle report (edge detection)
+    unlatched: bool = False  # DISABLED only: the service unlatch was given since the DISABLE
+    resume: bool = False  # PAUSED only: the pause began ENGAGED, RUN may resume it
 
 
 def initial_safety_state() -> SafetyState:
-    # rearm/unlatch "pressed" at boot, so a switch held down through a reset is not an edge.
-    return SafetyState(EcuState.OFF, Fault.NONE, True, True)
+    # Every edge input counts as held at boot, so a switch held down (or an ENGAGE held by the host)
+    # through a reset or restart is not an edge.
+    return SafetyState(EcuState.OFF, Fault.NONE, True, True, True, True, False, False)
 
 
 def vehicle_usable(inp: EcuInputs) -> bool:
@@ -210,6 +251,12 @@ def active_fault_bits(inp: EcuInputs, cal: Calibration) -> int:
         f |= _ESTOP_PAUSE
     if int(inp.request_flags) & _STOP:
         f |= _HOST_STOP_REQUEST
+    if inp.loop_stall:
+        f |= _LOOP_STALL
+    if inp.internal_error:
+        f |= _INTERNAL_ERROR
+    if inp.tx_guard_trip:
+        f |= _TX_GUARD
     return f
 
 
@@ -223,12 +270,13 @@ def active_faults(inp: EcuInputs, cal: Calibration) -> Fault:
 
 def _engage_ok(active: int, flags: int) -> bool:
     # RUN and fresh, host alive, request fresh, vehicle fresh and sane, calibration valid, no
-    # overrun streak, no driver, no fault, no stop request - and the host asks for ENGAGE.
+    # overrun streak, no stall, no internal fault, no driver, no stop request - and ENGAGE set.
     return active == 0 and bool(flags & _ENGAGE)
 
 
 def engage_allowed(inp: EcuInputs, cal: Calibration) -> bool:
-    """Every precondition of READY -> ENGAGED holds in this cycle's inputs."""
+    """Every precondition of READY -> ENGAGED holds in this cycle's inputs and ENGAGE is set (the
+    transition itself also needs ENGAGE to have risen since the last fresh request)."""
     return _engage_ok(_active(inp, cal), int(inp.request_flags))
 
 
@@ -245,23 +293,41 @@ def safety_transition(st: SafetyState, inp: EcuInputs, a: int, cal: Calibration)
     the verdict while the executive passes it the same inputs object) does not judge them again;
     the transition itself still runs every cycle. Returns `st` itself when nothing changed."""
     flags = int(inp.request_flags)
-    rearm = bool(flags & _REARM)
+    # Edges between fresh requests only: a stale or missing request is not the host letting go of
+    # a flag (after an NMT restart the ECU has no request at all while the host still holds ENGAGE).
+    if inp.request_fresh:
+        rearm = bool(flags & _REARM)
+        engage = bool(flags & _ENGAGE)
+    else:
+        rearm, engage = st.rearm_prev, st.engage_prev
     rearm_edge = rearm and not st.rearm_prev
+    engage_edge = engage and not st.engage_prev
+    usable = vehicle_usable(inp)
+    arm = inp.safety_arm if usable else st.arm_prev  # a button is only seen in usable reports
+    arm_edge = arm and not st.arm_prev
     unlatch_edge = inp.unlatch and not st.unlatch_prev
     s = st.state
     new = s
     latched = st.latched
+    unlatched = st.unlatched
+    resume = st.resume
     stopping = s in STOP_STATES
 
     if a & _ESTOP_DISABLE:
         if s != _DISABLED:
             new, latched = _DISABLED, Fault.ESTOP_DISABLE
+        unlatched = False  # an unlatch given before this DISABLE does not count for it
     elif s == _DISABLED:
-        if unlatch_edge:
+        # The radio must be heard saying RUN or PAUSE: not DISABLE (this branch) and not stale.
+        heard = not a & _ESTOP_TIMEOUT
+        if unlatch_edge and heard:
+            unlatched = True
+        if arm_edge and unlatched and heard:
             new, latched = _ready_or_off(a)
+            unlatched = False
     elif s == _MANUAL:
         # "No driver input" must be seen, not assumed: vehicle data has to be usable.
-        if rearm_edge and not a & (_DRIVER_OVERRIDE | _VEHICLE_TIMEOUT | _VEHICLE_CORRUPT):
+        if arm_edge and not a & (_DRIVER_OVERRIDE | _VEHICLE_TIMEOUT | _VEHICLE_CORRUPT):
             new, latched = _ready_or_off(a)
     elif s == _OFF:
         if not a & _CALIBRATION_INVALID:
@@ -272,34 +338,45 @@ def safety_transition(st: SafetyState, inp: EcuInputs, a: int, cal: Calibration)
         if a & _CALIBRATION_INVALID:
             new, latched = _OFF, Fault.CALIBRATION_INVALID
         elif a & _ESTOP_PAUSE:
-            new, latched = _PAUSED, Fault.ESTOP_PAUSE
-        elif _engage_ok(a, flags):
+            new, latched, resume = _PAUSED, Fault.ESTOP_PAUSE, False
+        elif a == 0 and engage_edge:
             new, latched = _ENGAGED, Fault.NONE
     elif s == _ENGAGED:
         if a & _STOP_FAULTS:
             new, latched = _SAFE_STOP, Fault(a & _STOP_FAULTS)
         elif a & _ESTOP_PAUSE:
-            new, latched = _PAUSED, Fault.ESTOP_PAUSE
+            new, latched, resume = _PAUSED, Fault.ESTOP_PAUSE, True
         elif not flags & _ENGAGE:
             new, latched = _SAFE_STOP, Fault.HOST_STOP_REQUEST
     elif s == _PAUSED:
         if a & _STOP_FAULTS:
             new, latched = _SAFE_STOP, Fault(a & _STOP_FAULTS)
         elif not a & _ESTOP_PAUSE:  # RUN and fresh: no ESTOP_TIMEOUT, which is a stop fault
+            if not resume:
+                new, latched = _READY, Fault.NONE  # never engaged: back to where the pause began
             # Releasing the brakes of a stopped, possibly unattended car must be an explicit act
             # (the host's ENGAGE, or its REARM from the hold), never a side effect of the radio.
-            if _engage_ok(a, flags):
+            elif _engage_ok(a, flags):
                 new, latched = _ENGAGED, Fault.NONE
             else:
                 new, latched = _SAFE_STOP, Fault.HOST_STOP_REQUEST
     elif s == _SAFE_STOP:
-        standstill = vehicle_usable(inp) and inp.speed_mps < cal.standstill_speed_mps
+        standstill = usable and inp.speed_mps < cal.standstill_speed_mps
         if rearm_edge and a == 0 and standstill:
-            new, latched = _READY, Fault.NONE
+            new, latched = (_ENGAGED if flags & _ENGAGE else _READY), Fault.NONE
 
-    if new == s and latched == st.latched and rearm == st.rearm_prev and inp.unlatch == st.unlatch_prev:
+    if (
+        new == s
+        and latched == st.latched
+        and rearm == st.rearm_prev
+        and inp.unlatch == st.unlatch_prev
+        and engage == st.engage_prev
+        and arm == st.arm_prev
+        and unlatched == st.unlatched
+        and resume == st.resume
+    ):
         return st  # the common case: nothing changed, no allocation
-    return SafetyState(new, latched, rearm, inp.unlatch)
+    return SafetyState(new, latched, rearm, inp.unlatch, engage, arm, unlatched, resume)
 
 
 def _ready_or_off(active: int) -> tuple[EcuState, Fault]:

@@ -15,8 +15,9 @@ import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from safety_spec import extreme_calibration
 
-from bywire.ecu.calibration import default_calibration
+from bywire.ecu.calibration import Calibration, default_calibration
 from bywire.ecu.core import ActuatorCommand, stop_decel_mps2, stop_time_bound_s
 from bywire.ecu.safety import OVERRUN_STREAK_LIMIT, STOP_STATES, engage_allowed
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
@@ -24,6 +25,7 @@ from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 CoreLoop = _pm.CoreLoop
 
 CAL = default_calibration()
+CALS = {"passat": CAL, "high": extreme_calibration("high"), "low": extreme_calibration("low")}
 EPS = 1e-9
 ENGAGE = RequestFlags.ENGAGE | RequestFlags.STEER
 
@@ -53,6 +55,10 @@ PERTURBATIONS: dict[str, st.SearchStrategy[Any]] = {
     "driver_throttle_pct": st.floats(0.0, 30.0),
     "driver_steer_torque_nm": st.floats(-4.0, 4.0),
     "unlatch": st.just(True),
+    "safety_arm": st.just(True),
+    "loop_stall": st.just(True),
+    "internal_error": st.just(True),
+    "tx_guard_trip": st.just(True),
 }
 
 
@@ -71,22 +77,60 @@ def input_changes(draw: st.DrawFn) -> dict[str, Any]:
 segments = st.lists(st.tuples(st.integers(1, 400), input_changes()), min_size=1, max_size=8)
 
 
-def check_cycle(prev: ActuatorCommand | None, cmd: ActuatorCommand, inputs: Any, dt: float) -> None:
+class History:
+    """What an invariant needs of the past: the last command, and the ENGAGE flag of the last fresh
+    request before this cycle (the ECU takes edges only between fresh requests)."""
+
+    def __init__(self) -> None:
+        self.prev: ActuatorCommand | None = None
+        self.engage_before = True  # held at boot
+        self.paused_from_engaged = False
+
+    def check(self, cmd: ActuatorCommand, inputs: Any, dt: float, cal: Calibration = CAL) -> None:
+        check_cycle(self.prev, cmd, inputs, dt, cal, self.engage_before, self.paused_from_engaged)
+        if inputs.request_fresh:
+            self.engage_before = bool(inputs.request_flags & RequestFlags.ENGAGE)
+        if cmd.state == EcuState.PAUSED and (self.prev is None or self.prev.state != EcuState.PAUSED):
+            self.paused_from_engaged = self.prev is not None and self.prev.state == EcuState.ENGAGED
+        self.prev = cmd
+
+
+def check_cycle(
+    prev: ActuatorCommand | None,
+    cmd: ActuatorCommand,
+    inputs: Any,
+    dt: float,
+    cal: Calibration = CAL,
+    engage_before: bool = False,
+    paused_from_engaged: bool = True,
+) -> None:
     # Wire limits (DBC DBW_Command) and pedal exclusivity.
     assert 0.0 <= cmd.throttle_pct <= 100.0 and 0.0 <= cmd.brake_bar <= 200.0
     assert cmd.throttle_pct == 0.0 or cmd.brake_bar == 0.0
-    assert CAL.accel_min_mps2 <= cmd.accel_target_mps2 <= CAL.accel_max_mps2
-    assert abs(cmd.steer_angle_rad) <= CAL.steer_max_rad
+    assert cal.accel_min_mps2 <= cmd.accel_target_mps2 <= cal.accel_max_mps2
+    assert abs(cmd.steer_angle_rad) <= cal.steer_max_rad
     if prev is not None and cmd.engage:
-        assert abs(cmd.accel_target_mps2 - prev.accel_target_mps2) <= CAL.jerk_max_mps3 * dt + EPS
+        assert abs(cmd.accel_target_mps2 - prev.accel_target_mps2) <= cal.jerk_max_mps3 * dt + EPS
     if prev is not None and cmd.steer_enable:
-        assert abs(cmd.steer_angle_rad - prev.steer_angle_rad) <= CAL.steer_rate_max_radps * dt + EPS
+        assert abs(cmd.steer_angle_rad - prev.steer_angle_rad) <= cal.steer_rate_max_radps * dt + EPS
 
     # No engage without every precondition; leaving on any violation happens in the same cycle.
     if cmd.state == EcuState.ENGAGED:
-        assert engage_allowed(inputs, CAL)
+        assert engage_allowed(inputs, cal)
         if prev is not None and prev.state != EcuState.ENGAGED:
-            assert prev.state in (EcuState.READY, EcuState.PAUSED)
+            # Engagement is an edge: from READY only when ENGAGE rose; from a pause only one that
+            # began ENGAGED; from the hold of a SAFE_STOP only with the host's REARM.
+            assert prev.state in (EcuState.READY, EcuState.PAUSED, EcuState.SAFE_STOP)
+            if prev.state == EcuState.READY:
+                assert not engage_before
+            elif prev.state == EcuState.PAUSED:
+                assert paused_from_engaged
+            else:
+                assert inputs.request_flags & RequestFlags.REARM and prev.holding
+                assert cmd.brake_bar > 0.0 or cmd.throttle_pct > 0.0  # never a released cycle
+    if prev is not None and prev.state in (EcuState.DISABLED, EcuState.MANUAL) and cmd.state != prev.state:
+        # Only a human re-arms: leaving a human latch needs the arm button (or a new DISABLE).
+        assert inputs.safety_arm or cmd.state == EcuState.DISABLED
     if inputs.estop_mode == EstopMode.DISABLE:
         assert cmd.state == EcuState.DISABLED
     if cmd.state in (EcuState.OFF, EcuState.READY, EcuState.MANUAL):
@@ -99,7 +143,7 @@ def check_cycle(prev: ActuatorCommand | None, cmd: ActuatorCommand, inputs: Any,
         if cmd.state == EcuState.ENGAGED:
             assert inputs.request_flags & RequestFlags.STEER
     if not cmd.ignition:
-        assert cmd.state == EcuState.DISABLED and cmd.park_brake and cmd.brake_bar == CAL.hold_brake_bar
+        assert cmd.state == EcuState.DISABLED and cmd.park_brake and cmd.brake_bar == cal.hold_brake_bar
     if cmd.state == EcuState.SAFE_STOP:
         assert cmd.faults_latched & ~Fault.ESTOP_PAUSE
 
@@ -110,17 +154,19 @@ def check_cycle(prev: ActuatorCommand | None, cmd: ActuatorCommand, inputs: Any,
     dt=st.sampled_from([0.001, 0.004, 0.01]),
     v0=st.floats(0.0, 35.0),
     grade=st.floats(-0.06, 0.06),
+    cal_name=st.sampled_from(sorted(CALS)),
 )
 def test_invariants_over_random_input_sequences(
-    segs: list[tuple[int, dict[str, Any]]], dt: float, v0: float, grade: float
+    segs: list[tuple[int, dict[str, Any]]], dt: float, v0: float, grade: float, cal_name: str
 ) -> None:
-    loop = CoreLoop(CAL, speed_mps=v0, grade=grade, dt_s=dt)
-    prev: ActuatorCommand | None = None
+    cal = CALS[cal_name]
+    loop = CoreLoop(cal, speed_mps=v0, grade=grade, dt_s=dt)
+    history = History()
+    history.check(loop.step(request_flags=RequestFlags.STEER), loop.last_inputs, dt, cal)  # engage press
     for n, changes in segs:
         for _ in range(n):
             cmd = loop.step(**changes)
-            check_cycle(prev, cmd, loop.last_inputs, dt)
-            prev = cmd
+            history.check(cmd, loop.last_inputs, dt, cal)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -129,23 +175,28 @@ def test_invariants_across_recoveries(segs: list[tuple[int, dict[str, Any]]]) ->
     # Random trouble, then the way back: healthy until held, the manual unlatch, a REARM pulse,
     # and healthy driving. The invariants hold through every recovery, and it does recover.
     loop = CoreLoop(CAL, speed_mps=5.0, dt_s=0.01)
-    prev: ActuatorCommand | None = None
+    history = History()
 
     def cycle(**changes: Any) -> ActuatorCommand:
-        nonlocal prev
         cmd = loop.step(**changes)
-        check_cycle(prev, cmd, loop.last_inputs, loop.dt_s)
-        prev = cmd
+        history.check(cmd, loop.last_inputs, loop.dt_s)
         return cmd
 
+    cycle(request_flags=RequestFlags.STEER)  # the host's engage press begins released
     for n, changes in segs:
         for _ in range(n):
             cycle(**changes)
         for _ in range(2000):  # up to 20 s for a stop to reach its hold
             if cycle().state not in STOP_STATES or loop.cmd.holding:
                 break
+        # The way back from anything: the service unlatch, the arm button (human latches), the
+        # host's REARM (a SAFE_STOP) and an engage press (READY).
         cycle(unlatch=True)  # an edge: the cycles before had it released
-        cycle(request_flags=ENGAGE | RequestFlags.REARM)
+        cycle(safety_arm=True)
+        if loop.cmd.state == EcuState.SAFE_STOP:
+            cycle(request_flags=ENGAGE | RequestFlags.REARM)
+        if loop.cmd.state == EcuState.READY:
+            cycle(request_flags=RequestFlags.STEER)
         for _ in range(50):
             cmd = cycle(request_accel_mps2=0.5)
         assert cmd.state == EcuState.ENGAGED
@@ -163,6 +214,9 @@ STOP_CAUSES: dict[str, dict[str, Any]] = {
     "calibration invalid": {"calibration_valid": False},
     "host STOP": {"request_flags": ENGAGE | RequestFlags.STOP},
     "host drops ENGAGE": {"request_flags": RequestFlags.STEER},
+    "loop stall": {"loop_stall": True},
+    "internal error": {"internal_error": True},
+    "transmit guard": {"tx_guard_trip": True},
     "E-stop PAUSE": {"estop_mode": EstopMode.PAUSE},
     "E-stop DISABLE": {"estop_mode": EstopMode.DISABLE},
 }
@@ -188,6 +242,7 @@ def test_every_stop_cause_reaches_standstill_and_hold_in_bounded_time(
     cause: str, v0: float, grade: float, requests: list[tuple[float, int]]
 ) -> None:
     loop = CoreLoop(CAL, speed_mps=v0, grade=grade, dt_s=0.01)
+    loop.step(request_flags=RequestFlags.STEER)  # an engage press
     for accel, n in requests:
         for _ in range(n):
             loop.step(request_accel_mps2=accel)

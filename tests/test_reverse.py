@@ -90,6 +90,7 @@ def test_gear_frames_decode_or_raise_frame_error(data: bytes, frame_id: int) -> 
 
 def _engaged_loop(**kw: object) -> _pm.CoreLoop:
     loop = _pm.CoreLoop(CAL, **kw)  # type: ignore[arg-type]
+    loop.step(request_flags=RequestFlags.STEER)  # an engage press: ENGAGE released, then raised
     loop.run(0.05, request_flags=ENGAGE)
     assert loop.cmd is not None and loop.cmd.state == EcuState.ENGAGED
     return loop
@@ -135,9 +136,10 @@ def test_shift_waits_for_the_brake_to_settle_and_for_every_wheel() -> None:
     # wheel still turning (or unknown) blocks it.
     st_ = initial_core_state(0.0)
     t = 0.0
-    for _ in range(20):
+    for k in range(20):
         t += 0.001
-        st_, cmd = core_step(st_, _pm.healthy_inputs(wheel_speed_max_mps=0.0), t, CAL)
+        flags = RequestFlags.STEER if k == 0 else ENGAGE  # an engage press
+        st_, cmd = core_step(st_, _pm.healthy_inputs(wheel_speed_max_mps=0.0, request_flags=flags), t, CAL)
     assert cmd.state == EcuState.ENGAGED
     for wheels in (0.3, math.inf):
         s2, t2 = st_, t
@@ -271,12 +273,14 @@ def test_sil_backs_the_car_10_m_straight_and_stops() -> None:
         stopped_at = None
         while t < 25.0:
             t += dt
+            # The host's engage press: ENGAGE released in the first cycle, then held.
+            flags = RequestFlags.STEER if t < 1.5 * dt else REVERSE
             togo = max(out.x_m - target_m, 0.0)  # metres still to back
             v = abs(out.speed_mps)
             v_des = min(2.0, math.sqrt(2.0 * 0.5 * togo))
             accel = 2.5 * (v_des - v) if togo > 0.05 else -2.0
             inp = _pm.healthy_inputs(
-                request_flags=REVERSE,
+                request_flags=flags,
                 request_accel_mps2=accel,
                 speed_mps=v,
                 wheel_speed_max_mps=max(abs(out.wheel_speed_fl_mps), abs(out.wheel_speed_rr_mps)),
