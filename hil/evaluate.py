@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from bywire.hil.scenario import MODULE_FAULTS, Check, Scenario, step_value
-from bywire.protocol.ecu_types import EcuState
+from bywire.hil.scenario import MODULE_FAULTS, STATE_AT, Check, Scenario, step_value
+from bywire.protocol.ecu_types import EcuState, Fault
 
 STANDSTILL_MPS = 0.05  # below this the car counts as stopped (wheel-speed sensor resolution ~0.03 m/s)
 HOLD_CREEP_MPS = 0.1  # a held car may not creep faster than this
@@ -115,6 +115,37 @@ def fault_metrics(plant: dict[str, np.ndarray], scenario: Scenario) -> dict[str,
     return metrics
 
 
+def rearm_metrics(
+    plant: dict[str, np.ndarray], host: dict[str, np.ndarray] | None, scenario: Scenario
+) -> dict[str, Any]:
+    """What the ECU did after the first fault: whether (and when) it engaged again, which fault bits
+    its status reported, and its state at the instants the checks ask for (`state_at_<T>s`)."""
+    metrics: dict[str, Any] = {}
+    t = plant["t_s"]
+    state = plant["ecu_state"]
+    engaged = int(EcuState.ENGAGED)
+    for check in scenario.checks:
+        m = STATE_AT.fullmatch(check.metric)
+        if m is not None:
+            i = int(np.searchsorted(t, float(m.group(1)), side="right")) - 1
+            metrics[check.metric] = EcuState(int(state[i])).name if 0 <= i < t.size else None
+    t_ref = scenario.fault_ref_s
+    if t_ref is None:
+        return metrics
+    after = t >= t_ref
+    i_left = _first_index(after & (state != engaged))
+    i_back = None if i_left is None else _first_index((t > t[i_left]) & (state == engaged))
+    metrics["reengaged_at_s"] = None if i_back is None else round(float(t[i_back]), 3)
+    metrics["reengaged_after_fault"] = i_back is not None
+    if host is not None and host["t_s"].size:
+        bits = 0
+        for f in host["ecu_faults"][host["t_s"] >= t_ref]:
+            if math.isfinite(f):
+                bits |= int(f)
+        metrics["ecu_faults_seen"] = [f.name for f in Fault if f and bits & int(f)]
+    return metrics
+
+
 def supervisor_metrics(scenario: Scenario, runtime: dict[str, Any]) -> dict[str, Any]:
     """What the host's supervisor made of the scenario's module faults (issue 3 contract:
     `detect_ms`, `action`): the first detection at or after the first module fault.
@@ -195,6 +226,7 @@ def evaluate(
             metrics["settle_time_s"] = settle if math.isfinite(settle) else None
             metrics["overshoot_mps2"] = round(overshoot or 0.0, 4)
         metrics.update(fault_metrics(plant, scenario))
+        metrics.update(rearm_metrics(plant, host, scenario))
         gaps = plant["lead_gap_m"][np.isfinite(plant["lead_gap_m"])]
         if gaps.size:
             metrics["min_gap_m"] = round(float(np.min(gaps)), 3)
@@ -219,6 +251,9 @@ def evaluate(
     runtime = extra.pop("host_runtime", None)
     if runtime is not None:
         metrics.update(supervisor_metrics(scenario, runtime))
+    service = extra.get("service_tool")
+    if service:
+        metrics["unlatch_result"] = next((a["result"] for a in service if a["what"] == "unlatch"), None)
     world = extra.pop("world", None)
     gcdc = extra.pop("gcdc", None)
     urban = extra.pop("urban", None)
@@ -263,6 +298,8 @@ def run_check(check: Check, metrics: dict[str, Any], mode: str = "sil") -> dict[
             passed = isinstance(value, int | float) and value <= float(limit)
         elif check.op == "min":
             passed = isinstance(value, int | float) and value >= float(limit)
+        elif check.op == "includes":
+            passed = isinstance(value, list | tuple) and limit in value
         else:
             passed = value == limit
     return {"name": check.name, "passed": bool(passed), "value": value, "limit": limit, "op": check.op}

@@ -141,7 +141,8 @@ class Plant:
         for fault in scenario.faults:
             self._faults[fault.kind] = (*self._faults.get(fault.kind, ()), fault)
         self._cmd_monitor = self.rx.monitor("DBW_Command")
-        self._frame_faults = any(k in self._faults for k in ("drop", "corrupt", "repeat", "delay"))
+        self._frame_faults = any(k in self._faults for k in ("drop", "corrupt", "repeat", "delay", "stuck"))
+        self._last_sent: dict[str, can.Message] = {}  # per frame: what a stuck sender repeats
         self._actuator_delay_s = scenario.actuator_delay_ms / 1000.0
         # Instants (scenario time) at which a fault starts or ends: the model is advanced there.
         starts = {f.at_s for f in scenario.faults}
@@ -174,6 +175,10 @@ class Plant:
     def driver_torque_nm(self, t: float) -> float:
         fault = self._active("driver_steer", t)
         return fault.torque_nm if fault else 0.0
+
+    def safety_arm(self, t: float) -> bool:
+        """The safety driver's arm button on the car (GW_Driver.SafetyArm), pressed by the scenario."""
+        return "arm_button" in self._faults and self._active("arm_button", t) is not None
 
     # -- stepping -----------------------------------------------------------------------------------
 
@@ -379,7 +384,15 @@ class Plant:
         if self._active("drop", t, name) is not None:
             self._next_counter(name, t)  # the sender still counts: the receiver sees a gap
             return
-        msg = self.codec.encode(frame, self._next_counter(name, t), saturate=True)
+        stuck = self._last_sent.get(name) if self._active("stuck", t, name) is not None else None
+        if stuck is not None:
+            # A frozen transmitter: the last frame again, byte for byte (counter, content and CRC).
+            msg = can.Message(
+                arbitration_id=stuck.arbitration_id, data=bytes(stuck.data), is_extended_id=False
+            )
+        else:
+            msg = self.codec.encode(frame, self._next_counter(name, t), saturate=True)
+            self._last_sent[name] = msg
         msg.timestamp = now_s
         if self._active("corrupt", t, name) is not None:
             data = bytearray(msg.data)
@@ -431,7 +444,12 @@ class Plant:
         pedal = self.driver_brake_pct(t)
         self._emit(
             "GW_Driver",
-            DriverInputs(brake_pedal_pressed=pedal > 2.0, throttle_pedal_pct=0.0, brake_pedal_pct=pedal),
+            DriverInputs(
+                brake_pedal_pressed=pedal > 2.0,
+                throttle_pedal_pct=0.0,
+                brake_pedal_pct=pedal,
+                safety_arm=self.safety_arm(t),
+            ),
             now_s,
             t,
         )

@@ -33,8 +33,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
+import can
+
 from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_clock
 from bywire.hil.scenario import Scenario
+from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil import RunResult
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, read_trace
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
@@ -217,6 +220,8 @@ def run_hil(
     stop_recording = threading.Event()
     rec_thread: threading.Thread | None = None
     result_extra: dict[str, Any] = {"host_link": host_link}
+    service: ServiceTool | None = None
+    service_bus: can.BusABC | None = None
     try:
         wait_for_port("127.0.0.1", vehicle_port, 30.0)
         if host_link == "remote":
@@ -314,11 +319,18 @@ def run_hil(
             recorder = Recorder(frames_to, buses, run_clock=wall_run_clock)
             rec_thread = threading.Thread(target=_record_loop, args=(recorder, stop_recording), daemon=True)
             rec_thread.start()
+        if scenario.faults_of("unlatch"):
+            if host_link != "remote":
+                raise RuntimeError("an 'unlatch' fault needs the shared host link (--host-link remote)")
+            service_bus = open_bus(host_link_url)
+            service = ServiceTool(service_bus)
         t0 = time.monotonic() + START_MARGIN_S
         for child in (plant, host):
             child.send_t0(t0)
         wall0 = time.monotonic()
-        _supervise(scenario, t0, host, plant, progress)
+        _supervise(scenario, t0, host, plant, progress, ecu=ecu, service=service)
+        if service is not None:
+            result_extra["service_tool"] = service.summary()
         result_extra["wall_s"] = round(time.monotonic() - wall0, 2)
         result_extra["real_time_factor"] = round(scenario.duration_s / max(1e-9, time.monotonic() - t0), 3)
     finally:
@@ -330,6 +342,9 @@ def run_hil(
             result_extra["recorded_frames"] = recorder.frames
             for b in recorder.buses.values():
                 b.shutdown()
+        if service_bus is not None:
+            with contextlib.suppress(OSError):  # the bus server may be gone already
+                service_bus.shutdown()
         codes = {}
         for child in reversed(children):
             codes[child.name] = child.stop()
@@ -361,7 +376,11 @@ def run_hil(
         result_extra["world"] = json.loads(world_path.read_text(encoding="utf-8"))
     stats_path = run_dir / "ecu_stats.json"
     if stats_path.exists():
-        result_extra["ecu_loop"] = json.loads(stats_path.read_text(encoding="utf-8"))
+        loop = json.loads(stats_path.read_text(encoding="utf-8"))
+        health = loop.pop("health", None)
+        if health is not None:
+            result_extra["ecu_health"] = health
+        result_extra["ecu_loop"] = loop
     plant_trace = read_trace(run_dir / "plant.csv", PLANT_COLUMNS)
     host_path = run_dir / "host.csv"
     host_trace = read_trace(host_path, HOST_COLUMNS) if host_path.exists() else None
@@ -389,18 +408,40 @@ def _record_loop(recorder: Recorder, stop: threading.Event) -> None:
 
 
 def _supervise(
-    scenario: Scenario, t0: float, host: Child, plant: Child, progress: Callable[[float], None] | None
+    scenario: Scenario,
+    t0: float,
+    host: Child,
+    plant: Child,
+    progress: Callable[[float], None] | None,
+    *,
+    ecu: Child | None = None,
+    service: ServiceTool | None = None,
 ) -> None:
-    """Wait for the plant to finish the scenario, applying the host-process faults on time."""
+    """Wait for the plant to finish the scenario, applying the process faults on time: the host's
+    freeze and kill, the ECU's loop stall (SIGSTOP, then SIGCONT after duration_s), and a service
+    tool's unlatch on the host link."""
     actions = sorted((f.at_s, f.kind) for f in scenario.faults if f.kind in ("host_freeze", "host_kill"))
+    for f in scenario.faults_of("loop_stall"):
+        actions += [(f.at_s, "ecu_stop"), (f.at_s + f.duration_s, "ecu_cont")]
+    actions += [(f.at_s, "unlatch") for f in scenario.faults_of("unlatch")]
+    actions.sort()
     end = t0 + scenario.duration_s
     limit = end + max(30.0, scenario.hil_timeout_s)
     last_report = -1
     while plant.proc.poll() is None:
         now = time.monotonic()
         while actions and now >= t0 + actions[0][0]:
-            _, kind = actions.pop(0)
-            host.signal(signal.SIGSTOP if kind == "host_freeze" else signal.SIGKILL)
+            at_s, kind = actions.pop(0)
+            if kind == "ecu_stop" and ecu is not None:
+                ecu.signal(signal.SIGSTOP)
+            elif kind == "ecu_cont" and ecu is not None:
+                ecu.signal(signal.SIGCONT)
+            elif kind == "unlatch" and service is not None:
+                service.send_unlatch(at_s)
+            elif kind in ("host_freeze", "host_kill"):
+                host.signal(signal.SIGSTOP if kind == "host_freeze" else signal.SIGKILL)
+        if service is not None:
+            service.poll(now - t0)
         if progress is not None and now >= t0:
             pct = int(min(1.0, (now - t0) / scenario.duration_s) * 20)
             if pct != last_report:
@@ -410,6 +451,8 @@ def _supervise(
             raise RuntimeError(
                 f"plant did not finish {scenario.duration_s} s scenario in time:\n{plant.tail()}"
             )
-        time.sleep(0.02)
+        # Wake on time for the next action (a stall's SIGCONT is timed to a few ms), else poll at 50 Hz.
+        wait = 0.02 if not actions else min(0.02, t0 + actions[0][0] - time.monotonic())
+        time.sleep(max(wait, 0.0))
     if plant.proc.returncode != 0:
         raise RuntimeError(f"plant failed with exit code {plant.proc.returncode}:\n{plant.tail()}")

@@ -33,12 +33,16 @@ FAULT_KINDS = (
     "drop",  # vehicle frames not sent at all: frames, duration_s
     "delay",  # vehicle frames held back: frames, delay_ms, duration_s
     "repeat",  # vehicle frames sent with a frozen alive counter: frames, duration_s
+    "stuck",  # a frozen transmitter: its last frame again, byte for byte: frames, duration_s
     "heartbeat_mute",  # the host stops its CANopen heartbeat but keeps sending requests
     "host_freeze",  # the host stops (SIL: stops stepping; HIL: SIGSTOP)
     "host_kill",  # the host dies (SIL: stops stepping; HIL: SIGKILL)
     "host_stop",  # the host asks the ECU for a controlled stop (request flag STOP)
-    "unlatch",  # the operator's manual unlatch of a DISABLE (SDO write)
+    "unlatch",  # a service tool on the host link writes the DISABLE unlatch (SDO 0x2300sub1 = 1)
+    "arm_button",  # the safety driver presses the arm button on the car (GW_Driver.SafetyArm)
+    "engage_press",  # the mission lets go of ENGAGE for a moment and asks anew (a new engage wish)
     "rearm",  # the host sends a REARM pulse
+    "loop_stall",  # the ECU's loop stops for duration_s (SIL: not stepped; HIL: SIGSTOP .. SIGCONT)
     # Host runtime faults (issue 3), injected into one module of the host: module = NAME
     "module_exception",  # the module's next step raises
     "module_hang",  # the module's next step never returns (an endless loop)
@@ -48,7 +52,11 @@ FAULT_KINDS = (
 )
 MODULE_FAULTS = ("module_exception", "module_hang", "module_deadlock", "module_slow", "module_kill")
 
-CHECK_OPS = ("max", "min", "equals")
+CHECK_OPS = ("max", "min", "equals", "includes")
+
+
+# The metric family `state_at_<T>s`: the ECU's state (name) at scenario time T.
+STATE_AT = re.compile(r"state_at_(\d+(?:\.\d+)?)s")
 
 
 class ScenarioError(SchemaError):
@@ -164,7 +172,11 @@ def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
     r = _Reader(item, source, path)
     kind = r.string("kind", choices=FAULT_KINDS)
     at_s = r.number("at_s", lo=0.0)
-    duration_s = r.number("duration_s", default=0.0, lo=0.0)
+    # A button press and a moment's release have a length of their own; a stall must have one.
+    default_duration = {"arm_button": 0.2, "engage_press": 0.1}.get(kind, 0.0)
+    duration_s = r.number("duration_s", default=default_duration, lo=0.0)
+    if kind in ("arm_button", "engage_press", "loop_stall") and duration_s <= 0.0:
+        raise r.error("duration_s", f"a '{kind}' fault needs a duration > 0 s")
     frames_raw = r.raw("frames", [])
     if not isinstance(frames_raw, list) or not all(isinstance(f, str) for f in frames_raw):
         raise r.error("frames", f"expected a list of DBC message names, got {frames_raw!r}")
@@ -177,7 +189,7 @@ def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
     delay = r.number("delay_ms", default=0.0, lo=0.0, hi=10_000.0) if kind == "delay" else 0.0
     module = r.string("module") if kind in MODULE_FAULTS else ""
     slow_ms = r.number("slow_ms", lo=0.0, hi=10_000.0) if kind == "module_slow" else 0.0
-    if kind in ("corrupt", "drop", "delay", "repeat") and not frames_raw:
+    if kind in ("corrupt", "drop", "delay", "repeat", "stuck") and not frames_raw:
         raise r.error("frames", f"a '{kind}' fault needs the list of frames it affects")
     r.finish()
     return FaultEvent(
@@ -204,11 +216,13 @@ def _parse_check(item: Any, source: str, path: str) -> Check:
     limit = r.raw(op)
     if op in ("max", "min") and (isinstance(limit, bool) or not isinstance(limit, int | float)):
         raise r.error(op, f"expected a number, got {limit!r}")
-    if op == "equals" and not isinstance(limit, bool | str | int | float):
+    if op in ("equals", "includes") and not isinstance(limit, bool | str | int | float):
         raise r.error(op, f"expected a value, got {limit!r}")
+    if STATE_AT.fullmatch(metric) is None and re.match(r"state_at_\d", metric):
+        raise r.error("metric", f"expected state_at_<seconds>s (e.g. state_at_12.5s), got {metric!r}")
     hil_limit = r.raw("hil")
     if hil_limit is not None:
-        if op == "equals":
+        if op in ("equals", "includes"):
             raise r.error("hil", "a HIL limit applies to max and min checks only")
         if isinstance(hil_limit, bool) or not isinstance(hil_limit, int | float):
             raise r.error("hil", f"expected a number, got {hil_limit!r}")

@@ -32,6 +32,7 @@ from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.recording import Recorder
 from bywire.hil.run_calibration import load_run_calibration
 from bywire.hil.scenario import Scenario
+from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil_bus import SimVirtualBus
 from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, TraceWriter
 from bywire.hil.world.links import BytePipe
@@ -133,6 +134,10 @@ def run_sil(
         )
         if recorder is not None and recorder.mcap is not None:
             host.store.add_tap(recorder.mcap.record)  # topics and frames in one file, one clock
+        # The ECU's own faults: its loop not stepped (a stall), a service tool's unlatch on the link.
+        stalls = [(f.at_s, f.at_s + f.duration_s) for f in scenario.faults_of("loop_stall")]
+        unlatches = sorted(f.at_s for f in scenario.faults_of("unlatch"))
+        service = ServiceTool(bus(link_ch)) if unlatches else None
         n = round(scenario.duration_s / ECU_PERIOD_S)
         wall0 = time.perf_counter()
         report_every = max(1, n // 20)
@@ -140,7 +145,12 @@ def run_sil(
             t = k * ECU_PERIOD_S
             clock.advance_to(t)
             plant.step(t)
-            ecu.step(t)
+            if not stalls or not any(a <= t < b for a, b in stalls):
+                ecu.step(t)
+            if service is not None:
+                if unlatches and t >= unlatches[0]:
+                    service.send_unlatch(unlatches.pop(0))
+                service.poll(t)
             host.step(t)
             if recorder is not None:
                 recorder.pump()
@@ -150,9 +160,12 @@ def run_sil(
         extra: dict[str, Any] = {
             "real_time_factor": round(scenario.duration_s / wall, 2) if wall > 0 else None,
             "ecu_vehicle_rx": ecu.rx_stats()["total"],
+            "ecu_health": ecu.health_summary(),
             "plant_collisions": plant.collisions,
             "host_runtime": host.summary(),
         }
+        if service is not None:
+            extra["service_tool"] = service.summary()
         if plant.world is not None:
             extra["world"] = plant.world.summary()
         if world is not None:

@@ -10,6 +10,15 @@ EcuTx is the host's last check before the ECU: it sends a control request only i
 zero acceleration) instead of repeating an old request, and it adds STOP whenever the supervisor
 asked for one. The heartbeat stops only when the host itself stops (or a scenario mutes it): a host
 whose controller failed is still alive, and says so while it stops the car in an orderly way.
+
+Engagement is an edge (ecu.safety): the ECU goes from READY to ENGAGED only when the ENGAGE flag
+rises while it is ready. `EngagePress` turns the mission's wish into that edge: each time the
+mission starts asking for ENGAGE, the request is pending until the ECU reports ENGAGED; while it
+is pending and the ECU reports READY without any fault, the host presses: one request without
+ENGAGE, then with it, again after `ENGAGE_RETRY_S` if the ECU stayed READY. A wish that was
+consumed (the ECU engaged once) is never pressed again on its own: after a DISABLE, a driver
+override, an ECU reset or an NMT restart the flag stays a level that engages nothing, until the
+mission asks anew.
 """
 
 from __future__ import annotations
@@ -32,7 +41,7 @@ from bywire.host.modules.messages import (
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import STOP_REQUEST
 from bywire.protocol.canopen_node import HostMaster, NmtState
-from bywire.protocol.ecu_types import RequestFlags
+from bywire.protocol.ecu_types import EcuState, RequestFlags
 from bywire.protocol.host_link import HostRequest
 
 # 5 host periods: older control requests are not sent (a controlled stop is asked for instead).
@@ -40,6 +49,42 @@ from bywire.protocol.host_link import HostRequest
 # (`ecu_tx` params.request_max_age_ms); the ECU's heartbeat watchdog is independent of it.
 REQUEST_MAX_AGE_S = 0.1
 NMT_START_RETRY_S = 0.2
+# A press the ECU did not take (a request lost on the link, a precondition gone for a moment) is
+# repeated after this long: well over the 20 ms status period and the 50 Hz request period.
+ENGAGE_RETRY_S = 0.3
+_READY, _ENGAGED = int(EcuState.READY), int(EcuState.ENGAGED)
+
+
+class EngagePress:
+    """The ENGAGE flag to send, from the mission's wish and the ECU's reported state (see the
+    module docstring). Pure: `flag(want, state, faults, now_s)` once per request sent."""
+
+    def __init__(self) -> None:
+        self.pending = False
+        self._want_prev = False
+        self._released = False  # the last request sent had ENGAGE cleared for a press
+        self._pressed_s = -math.inf
+
+    def flag(self, want: bool, state: int | None, faults: int, now_s: float) -> bool:
+        if want and not self._want_prev:
+            self.pending = True
+        self._want_prev = want
+        if not want:
+            self.pending = self._released = False
+            return False
+        if state == _ENGAGED:
+            self.pending = False
+        if not (self.pending and state == _READY and faults == 0):
+            self._released = False
+            return True
+        if self._released:  # the release went out last request: now the rising edge
+            self._released = False
+            self._pressed_s = now_s
+            return True
+        if now_s - self._pressed_s >= ENGAGE_RETRY_S:
+            self._released = True
+            return False
+        return True
 
 
 class EcuRx(Module):
@@ -92,6 +137,7 @@ class EcuTx(Module):
         self.t0_s = t0_s
         self.counter = 0
         self._next_nmt_start_s = -math.inf
+        self.engage_press = EngagePress()
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -114,6 +160,11 @@ class EcuTx(Module):
             flags = RequestFlags.STOP | (RequestFlags.ENGAGE if mission is not None and mission.engage else 0)
         if ctx.latest(STOP_REQUEST) is not None:
             flags |= RequestFlags.STOP
+        state = status.state if status is not None and status.valid else None
+        engage = self.engage_press.flag(
+            bool(flags & RequestFlags.ENGAGE), state, status.faults if status is not None else -1, now
+        )
+        flags = flags | RequestFlags.ENGAGE if engage else flags & ~RequestFlags.ENGAGE
         self.counter = (self.counter + 1) & 0xFF
         self.link.send_request(
             HostRequest(accel_mps2=accel, steer_angle_rad=steer, flags=flags, counter=self.counter)

@@ -37,7 +37,8 @@ class ScenarioMission(Module):
                 accel_mps2=step_value(sc.accel_profile, t) if sc.accel_profile else 0.0,
                 steer_rad=step_value(sc.steer_profile, t) if sc.steer_profile else 0.0,
                 steer=bool(sc.steer_profile),
-                engage=t >= sc.engage_at_s,
+                # An engage press lets go of ENGAGE for a moment: the mission asks anew.
+                engage=t >= sc.engage_at_s and not self._active("engage_press", t),
                 rearm=any(f.kind == "rearm" and f.at_s <= t < f.at_s + REARM_PULSE_S for f in sc.faults),
                 stop=self._active("host_stop", t),
                 heartbeat_mute=self._active("heartbeat_mute", t),
