@@ -92,6 +92,21 @@ class EcuConfig:
     corrupt_streak: int = 3  # consecutive rejected frames of one report = corruption (30 ms at 100 Hz)
 
 
+def command_frame(cmd: ActuatorCommand) -> DbwCommand:
+    """The DBW_Command frame that carries a core command to the gateway."""
+    return DbwCommand(
+        throttle_pct=cmd.throttle_pct,
+        brake_bar=cmd.brake_bar,
+        steer_angle_rad=cmd.steer_angle_rad,
+        engage=cmd.engage,
+        park_brake=cmd.park_brake,
+        ignition=cmd.ignition,
+        steer_enable=cmd.steer_enable,
+        ecu_state=cmd.state,
+        gear_request=cmd.gear_request,
+    )
+
+
 class EcuApp:
     """The ECU's cyclic work on two buses; steppable in lockstep (SIL) and by the real-time executive."""
 
@@ -273,18 +288,7 @@ class EcuApp:
         guard.note_cycle(cmd.steer_enable)
         if now_s >= self._next_command_s:
             self._next_command_s = max(self._next_command_s + self.config.command_period_s, now_s)
-            frame = DbwCommand(
-                throttle_pct=cmd.throttle_pct,
-                brake_bar=cmd.brake_bar,
-                steer_angle_rad=cmd.steer_angle_rad,
-                engage=cmd.engage,
-                park_brake=cmd.park_brake,
-                ignition=cmd.ignition,
-                steer_enable=cmd.steer_enable,
-                ecu_state=cmd.state,
-                gear_request=cmd.gear_request,
-            )
-            frame, refused = guard.guard(frame, cmd.state, inputs.gear_engaged, now_s)
+            frame, refused = guard.guard(command_frame(cmd), cmd.state, inputs.gear_engaged, now_s)
             if refused is not None:
                 self._guard_pending = True
                 self.internal_fault_events += 1

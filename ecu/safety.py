@@ -191,14 +191,19 @@ class SafetyState:
     unlatch_prev: bool  # unlatch input last cycle
     engage_prev: bool = True  # ENGAGE flag of the last fresh request (edge detection)
     arm_prev: bool = True  # arm button in the last usable vehicle report (edge detection)
-    unlatched: bool = False  # DISABLED only: the service unlatch was given since the DISABLE
-    resume: bool = False  # PAUSED only: the pause began ENGAGED, RUN may resume it
+    # Read in one state only, and set on every entry into it (so stale elsewhere, by design):
+    unlatched: bool = False  # DISABLED: the service unlatch was given since the DISABLE
+    resume: bool = False  # PAUSED: the pause began ENGAGED, RUN may resume it
 
 
 def initial_safety_state() -> SafetyState:
     # Every edge input counts as held at boot, so a switch held down (or an ENGAGE held by the host)
     # through a reset or restart is not an edge.
-    return SafetyState(EcuState.OFF, Fault.NONE, True, True, True, True, False, False)
+    # `unlatched` and `resume` keep their defaults: each is read in one state only (DISABLED,
+    # PAUSED) and set on every entry into it.
+    return SafetyState(
+        EcuState.OFF, Fault.NONE, rearm_prev=True, unlatch_prev=True, engage_prev=True, arm_prev=True
+    )
 
 
 def vehicle_usable(inp: EcuInputs) -> bool:
@@ -324,10 +329,10 @@ def safety_transition(st: SafetyState, inp: EcuInputs, a: int, cal: Calibration)
             unlatched = True
         if arm_edge and unlatched and heard:
             new, latched = _ready_or_off(a)
-            unlatched = False
     elif s == _MANUAL:
-        # "No driver input" must be seen, not assumed: vehicle data has to be usable.
-        if arm_edge and not a & (_DRIVER_OVERRIDE | _VEHICLE_TIMEOUT | _VEHICLE_CORRUPT):
+        # "No driver input" must be seen, not assumed: an arm edge is only ever seen in usable
+        # vehicle data, which is also where the driver's pedals and torque are believed.
+        if arm_edge and not a & _DRIVER_OVERRIDE:
             new, latched = _ready_or_off(a)
     elif s == _OFF:
         if not a & _CALIBRATION_INVALID:
@@ -360,7 +365,7 @@ def safety_transition(st: SafetyState, inp: EcuInputs, a: int, cal: Calibration)
                 new, latched = _ENGAGED, Fault.NONE
             else:
                 new, latched = _SAFE_STOP, Fault.HOST_STOP_REQUEST
-    elif s == _SAFE_STOP:
+    else:  # SAFE_STOP: every other state has its branch above
         standstill = usable and inp.speed_mps < cal.standstill_speed_mps
         if rearm_edge and a == 0 and standstill:
             new, latched = (_ENGAGED if flags & _ENGAGE else _READY), Fault.NONE

@@ -11,17 +11,17 @@ Rules (`check_command`; the first broken rule is named):
 
 1. every value is a finite number inside the DBC's wire range and the calibration's limits:
    0 <= throttle <= 100 %, 0 <= brake <= 200 bar, |steer| <= steer_max_rad;
-2. passive states (OFF, READY, MANUAL) command nothing: no engage, no throttle, no brake, no steering;
-3. stops (PAUSED, SAFE_STOP, DISABLED) keep the gateway engaged (our brakes hold the car);
-4. throttle only while ENGAGED (propulsion never helps a stop), never together with the brake, and
+2. the frame's EcuState field is the safety state;
+3. passive states (OFF, READY, MANUAL) command nothing: no engage, no throttle, no brake, no
+   steering (so steering is enabled only while ENGAGED or in a stop that keeps its angle);
+4. stops (PAUSED, SAFE_STOP, DISABLED) keep the gateway engaged (our brakes hold the car);
+5. throttle only while ENGAGED (propulsion never helps a stop), never together with the brake, and
    only with the ignition on;
-5. steering enabled only while ENGAGED or in a stop that keeps the angle it had;
 6. while steering stays enabled from one sent command to the next, the angle moves by at most
    steer_rate_max_radps times the time between them (plus one DBC step of 0.0001 rad);
 7. ignition off and park brake only in DISABLED (the hold after an E-stop DISABLE);
 8. a gear other than the engaged one is asked for only while ENGAGED, braked and without throttle
-   (the gateway shifts at standstill with the brake applied);
-9. the frame's EcuState field is the safety state.
+   (the gateway shifts at standstill with the brake applied).
 
 A refused command is replaced (`TxGuard.replacement`): in a passive state by the passive command
 (engage off: whoever drives keeps the car), otherwise by the safe stop command: gateway engaged,
@@ -85,7 +85,7 @@ def check_command(
     if cmd.ecu_state != state:
         return f"frame says {EcuState(cmd.ecu_state).name}, the safety state is {state.name}"
     if state in _PASSIVE:
-        if cmd.engage or thr > 0.0 or brk > 0.0 or cmd.steer_enable:
+        if cmd.engage or brk > 0.0 or cmd.steer_enable:  # (a throttle is refused by rule 5)
             return f"{state.name} is passive: engage, throttle, brake and steering must be off"
     elif state in _STOPS and not cmd.engage:
         return f"{state.name} releases the gateway: a stop must hold the car with our brakes"
@@ -96,8 +96,6 @@ def check_command(
             return f"throttle {thr} % together with brake {brk} bar"
         if not cmd.ignition:
             return f"throttle {thr} % with the ignition off"
-    if cmd.steer_enable and state not in (EcuState.ENGAGED, *_STOPS):
-        return f"steering enabled in {state.name}"
     if cmd.steer_enable and prev is not None and prev.steer_enable and steer_continuous:
         step = abs(steer - prev.steer_angle_rad)
         limit = cal.steer_rate_max_radps * max(dt_s, 0.0) + STEER_LSB_RAD

@@ -51,6 +51,8 @@ class _Car:
     def __init__(self) -> None:
         self.codec = VehicleCodec()
         self.tx = VehicleTx(self.codec)
+        self.gateway: can.BusABC
+        self.host: HostMaster
         self.gw_rx = VehicleRx(self.codec, accept=["DBW_Command"], max_age_cycles=None)
         self.estop = EstopMode.RUN
         self.driver_brake = False
@@ -91,6 +93,20 @@ class _Car:
         msg = self.tx.encode(frame, timestamp_s=now_s)
         self._last[name] = msg
         return msg
+
+    def gateway_and_host(self, k: int, now: float) -> None:
+        """Millisecond k after the ECU's cycle: the gateway reads the commands, and every 20 ms the
+        host polls, (re)starts the ECU node, sends its request and its heartbeat."""
+        while (msg := self.gateway.recv(0)) is not None:
+            frame = self.gw_rx.feed(msg, now, now)
+            if isinstance(frame, DbwCommand):
+                self.commands.append((now, frame))
+        if k % 20 == 0 and not self.host_silent:
+            self.host.poll(now)
+            if self.host.ecu_nmt_state(now) is not NmtState.OPERATIONAL:
+                self.host.start_ecu()
+            self.host.send_request(self.request())
+            self.host.tick(now)
 
     def request(self) -> HostRequest:
         if not self.request_stuck:
@@ -141,16 +157,7 @@ class Rig(_Car):
             self.gateway.send(self.encode(name, frame, now))
         if not self.stalled:
             self.ecu.step(now)
-        while (msg := self.gateway.recv(0)) is not None:
-            frame = self.gw_rx.feed(msg, now)
-            if isinstance(frame, DbwCommand):
-                self.commands.append((now, frame))
-        if k % 20 == 0 and not self.host_silent:
-            self.host.poll(now)
-            if self.host.ecu_nmt_state(now) is not NmtState.OPERATIONAL:
-                self.host.start_ecu()
-            self.host.send_request(self.request())
-            self.host.tick(now)
+        self.gateway_and_host(k, now)
         self.clock.advance_to(now + 0.001)
 
     def run(self, seconds: float, until: Callable[[], bool] | None = None) -> float:
@@ -250,16 +257,7 @@ class WallRig(_Car):
                     msg = self.encode(name, frame, now)
                     msg.timestamp = time.time()  # python-can stamps on the epoch clock
                     self.gateway.send(msg)
-                while (msg := self.gateway.recv(0)) is not None:
-                    frame = self.gw_rx.feed(msg, now, now)
-                    if isinstance(frame, DbwCommand):
-                        self.commands.append((now, frame))
-                if k % 20 == 0 and not self.host_silent:
-                    self.host.poll(now)
-                    if self.host.ecu_nmt_state(now) is not NmtState.OPERATIONAL:
-                        self.host.start_ecu()
-                    self.host.send_request(self.request())
-                    self.host.tick(now)
+                self.gateway_and_host(k, now)
             k += 1
 
     def wait(self, seconds: float) -> None:

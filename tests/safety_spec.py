@@ -344,6 +344,34 @@ class FaultBitsSpec(SafetySpec):
         assert active_faults(healthy_inputs(), self.CAL) == Fault.NONE
         assert active_faults(healthy_inputs(safety_arm=True), self.CAL) == Fault.NONE
 
+    def test_conditions_together_report_every_bit(self) -> None:
+        # Every condition that can hold at the same time as the others, all at once: the bits add up.
+        together = [
+            "host heartbeat lost",
+            "request stale",
+            "vehicle corrupt",
+            "calibration invalid",
+            "overrun streak",
+            "E-stop DISABLE",
+            "host STOP",
+            "loop stall",
+            "internal error",
+            "transmit guard",
+        ]
+        changes: dict[str, Any] = {}
+        want = Fault.NONE
+        for name in together:
+            changes.update(self.breakers()[name])
+            want |= EXPECTED_BITS[name]
+        assert active_faults(healthy_inputs(**changes), self.CAL) == want
+        # and the ones the vehicle data must be usable for, with a stale radio
+        changes = {"driver_brake_pressed": True, "estop_fresh": False, "host_alive": False}
+        want = Fault.DRIVER_OVERRIDE | Fault.ESTOP_TIMEOUT | Fault.HOST_HEARTBEAT
+        assert active_faults(healthy_inputs(**changes), self.CAL) == want
+        changes = {"vehicle_fresh": False, "request_accel_mps2": NAN, "host_alive": False}
+        want = Fault.VEHICLE_TIMEOUT | Fault.REQUEST_INVALID | Fault.HOST_HEARTBEAT
+        assert active_faults(healthy_inputs(**changes), self.CAL) == want
+
     def test_the_internal_faults_are_stop_faults(self) -> None:
         for bit in (Fault.LOOP_STALL, Fault.INTERNAL_ERROR, Fault.TX_GUARD):
             assert bit & STOP_FAULTS
@@ -414,7 +442,7 @@ class PauseResumeSpec(SafetySpec):
         loop.step(estop_mode=EstopMode.PAUSE)
         changes, bit = FAULTS[fault]
         cmd = loop.step(estop_mode=EstopMode.PAUSE, **changes)
-        assert cmd.state == EcuState.SAFE_STOP and cmd.faults_latched & bit
+        assert cmd.state == EcuState.SAFE_STOP and cmd.faults_latched == bit
         for _ in range(100):
             assert loop.step().state == EcuState.SAFE_STOP  # RUN alone does not resume
 
@@ -631,7 +659,8 @@ class FaultsSafeStopSpec(SafetySpec):
         v0 = loop.last_inputs.speed_mps if name in BLIND else loop.plant.speed_mps
         a0 = loop.cmd.accel_target_mps2
         cmd = loop.step(**changes)
-        assert cmd.state == EcuState.SAFE_STOP and cmd.faults_latched & bit
+        # The latched cause is exactly the stop fault(s) of the cycle, nothing added.
+        assert cmd.state == EcuState.SAFE_STOP and cmd.faults_latched == bit
         assert bool(cmd.faults_active & bit) == (name not in {"host drops ENGAGE"})
         assert cmd.throttle_pct == 0.0 and cmd.engage
         bound = stop_time_bound_s(v0, a0, cal.safe_stop_decel_mps2, cal)
@@ -726,6 +755,15 @@ class RearmSpec(SafetySpec):
         cmd = loop.step(request_flags=REARM, **changes)
         assert cmd.state == EcuState.SAFE_STOP
 
+    def test_rearm_needs_the_speed_below_standstill(self) -> None:
+        v = self.CAL.standstill_speed_mps
+        loop = self.stopped()
+        loop.step(request_flags=REARM, speed_mps=v)  # at the boundary: not standstill
+        assert loop.cmd.state == EcuState.SAFE_STOP
+        loop.step()
+        loop.step(request_flags=REARM, speed_mps=v * 0.999)
+        assert loop.cmd.state == EcuState.ENGAGED
+
     def test_a_rearm_in_a_stale_request_is_not_an_edge(self) -> None:
         loop = self.stopped()
         loop.run(0.1, request_fresh=False, request_flags=RequestFlags.NONE)
@@ -763,6 +801,13 @@ class SteeringSpec(SafetySpec):
         for _ in range(300):
             cmd = loop.step(host_alive=False, request_steer_angle_rad=-self.CAL.steer_max_rad)
             assert cmd.steer_enable and cmd.steer_angle_rad == angle
+
+    def test_a_measured_angle_that_is_not_a_number_keeps_the_last_angle(self) -> None:
+        loop = self.ready(10.0)
+        loop.plant.steer_rad = 0.5 * self.CAL.steer_max_rad
+        before = loop.step(request_flags=HELD_LOW).steer_angle_rad
+        cmd = loop.step(request_flags=HELD_LOW, steer_angle_meas_rad=NAN)
+        assert cmd.steer_angle_rad == before and not cmd.steer_enable
 
     def test_stop_from_ready_does_not_steer(self) -> None:
         loop = self.ready(10.0)

@@ -65,3 +65,43 @@ def test_inputs_are_frozen_and_keyword_only() -> None:
     assert dataclasses.replace(inp, speed_mps=3.0).speed_mps == 3.0
     assert dataclasses.replace(inp) == inp
     assert HELD_LOW & RequestFlags.ENGAGE == 0
+
+
+def test_safety_step_judges_standstill_with_the_calibration_it_is_given() -> None:
+    cal = default_calibration()
+    st = dataclasses.replace(initial_safety_state(), state=EcuState.SAFE_STOP, rearm_prev=False)
+    inp = healthy_inputs(request_flags=RequestFlags.REARM, speed_mps=0.5 * cal.standstill_speed_mps)
+    assert safety_step(st, inp, cal)[0].state == EcuState.READY
+    slow = dataclasses.replace(cal, standstill_speed_mps=0.25 * cal.standstill_speed_mps)
+    assert safety_step(st, inp, slow)[0].state == EcuState.SAFE_STOP
+
+
+def test_a_disabled_ecu_keeps_its_state_object_while_the_radio_says_disable() -> None:
+    cal = default_calibration()
+    st = dataclasses.replace(initial_safety_state(), state=EcuState.DISABLED, latched=Fault.ESTOP_DISABLE)
+    inp = healthy_inputs(estop_mode=EstopMode.DISABLE, unlatch=False)
+    new, _ = safety_step(st, inp, cal)
+    assert new.state == EcuState.DISABLED and not new.unlatched
+    assert safety_step(new, inp, cal)[0] is new  # no allocation in the common case
+
+
+def test_a_state_whose_inputs_are_all_seen_is_returned_as_it_is_in_every_state() -> None:
+    # When the flags it remembers already match the inputs, the transition allocates nothing: the
+    # same object comes back (the 1 kHz loop's common case), in every state the inputs keep it in.
+    cal = default_calibration()
+    cases = {
+        EcuState.DISABLED: healthy_inputs(estop_mode=EstopMode.DISABLE, request_flags=RequestFlags.NONE),
+        EcuState.READY: healthy_inputs(request_flags=RequestFlags.NONE),
+        EcuState.MANUAL: healthy_inputs(request_flags=RequestFlags.NONE),
+        EcuState.ENGAGED: healthy_inputs(request_flags=RequestFlags.ENGAGE),
+    }
+    for state, inp in cases.items():
+        st = SafetyState(
+            state,
+            Fault.NONE,
+            rearm_prev=False,
+            unlatch_prev=False,
+            engage_prev=bool(inp.request_flags & RequestFlags.ENGAGE),
+            arm_prev=False,
+        )
+        assert safety_step(st, inp, cal)[0] is st, state

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from safety_spec import HELD_LOW, extreme_calibration
 from test_ecu_core_properties import segments
 
+from bywire.ecu.app import command_frame
 from bywire.ecu.calibration import Calibration, default_calibration
 from bywire.ecu.core import ActuatorCommand
 from bywire.ecu.tx_guard import FALLBACK_BRAKE_RAMP_S, TxGuard, check_command
@@ -208,17 +209,7 @@ def _run_core_through_guard(
             guard.note_cycle(cmd.steer_enable)
             if round(loop.t_s * 1000) % 10:
                 continue
-            frame = DbwCommand(
-                throttle_pct=cmd.throttle_pct,
-                brake_bar=cmd.brake_bar,
-                steer_angle_rad=cmd.steer_angle_rad,
-                engage=cmd.engage,
-                park_brake=cmd.park_brake,
-                ignition=cmd.ignition,
-                steer_enable=cmd.steer_enable,
-                ecu_state=cmd.state,
-                gear_request=cmd.gear_request,
-            )
+            frame = command_frame(cmd)
             _, reason = guard.guard(frame, cmd.state, loop.last_inputs.gear_engaged, loop.t_s)
             sent += 1
             if reason is not None:
@@ -272,3 +263,107 @@ def test_calibration_limits_are_the_guards_limits() -> None:
     narrow = dataclasses.replace(CAL, steer_max_rad=0.1)
     assert check(command(steer_angle_rad=0.2), cal=CAL) is None
     assert check(command(steer_angle_rad=0.2), cal=narrow) is not None
+
+
+def test_a_fallback_that_begins_above_the_hold_pressure_keeps_its_brake() -> None:
+    guard = TxGuard(CAL)
+    strong = command(throttle_pct=0.0, brake_bar=150.0, ecu_state=EcuState.SAFE_STOP)
+    guard.guard(strong, EcuState.SAFE_STOP, Gear.DRIVE, 0.0)
+    for k in range(1, 20):
+        frame, reason = guard.guard(
+            command(ecu_state=EcuState.SAFE_STOP), EcuState.SAFE_STOP, Gear.DRIVE, k * 0.01
+        )
+        assert reason is not None and frame.brake_bar == 150.0  # never softer than what was braking
+
+
+# --- the boundaries and the memory of the guard (each line pins one rule down) ------------------
+
+
+def test_the_limits_themselves_are_allowed() -> None:
+    assert check(command(throttle_pct=100.0)) is None
+    assert check(command(throttle_pct=0.0, brake_bar=200.0)) is None
+    assert check(command(steer_angle_rad=CAL.steer_max_rad)) is None
+    assert check(command(steer_angle_rad=-CAL.steer_max_rad)) is None
+    step = CAL.steer_rate_max_radps * SEND_PERIOD_S + 0.0001  # the rate limit plus one DBC step
+    assert check(command(steer_angle_rad=step), prev=command()) is None
+    assert check(command(steer_angle_rad=step * 1.001), prev=command()) is not None
+
+
+@pytest.mark.parametrize("field", ["throttle_pct", "brake_bar"])
+def test_any_pedal_at_all_is_refused_in_a_passive_state(field: str) -> None:
+    passive = command(**PASSIVE, ecu_state=EcuState.READY)
+    assert check(passive, EcuState.READY) is None
+    assert check(dataclasses.replace(passive, **{field: 0.01}), EcuState.READY) is not None
+
+
+def test_any_throttle_at_all_is_refused_in_a_stop() -> None:
+    stop = command(throttle_pct=0.01, brake_bar=0.0, ecu_state=EcuState.PAUSED)
+    assert "propulsion only while ENGAGED" in (check(stop, EcuState.PAUSED) or "")
+
+
+def test_a_shift_needs_only_some_brake() -> None:
+    cmd = command(throttle_pct=0.0, brake_bar=0.01, gear_request=Gear.REVERSE)
+    assert check(cmd) is None
+
+
+def test_the_rate_rule_reports_the_interval_in_milliseconds() -> None:
+    reason = check(command(steer_angle_rad=0.4), prev=command(), dt_s=0.1)
+    assert reason is not None and "in 100.0 ms" in reason
+
+
+def test_the_guard_measures_the_rate_between_the_commands_it_sent() -> None:
+    guard = TxGuard(CAL)
+    assert guard.last_reason is None and guard.trips == 0
+    guard.guard(command(), EcuState.ENGAGED, Gear.DRIVE, 10.0)
+    too_far = CAL.steer_rate_max_radps * 0.01 * 1.5
+    _, reason = guard.guard(command(steer_angle_rad=too_far), EcuState.ENGAGED, Gear.DRIVE, 10.01)
+    assert reason is not None and guard.trips == 1 and guard.last_reason == reason
+    _, reason2 = guard.guard(command(throttle_pct=5.0, brake_bar=5.0), EcuState.ENGAGED, Gear.DRIVE, 10.02)
+    assert reason2 is not None and guard.trips == 2 and guard.last_reason == reason2
+
+
+def test_steering_interrupted_between_two_sends_may_start_anywhere() -> None:
+    guard = TxGuard(CAL)
+    guard.guard(command(), EcuState.ENGAGED, Gear.DRIVE, 0.0)
+    for _ in range(9):
+        guard.note_cycle(True)  # enabled in every cycle: one continuous motion
+    _, reason = guard.guard(command(steer_angle_rad=0.2), EcuState.ENGAGED, Gear.DRIVE, 0.01)
+    assert reason is not None
+    guard = TxGuard(CAL)
+    guard.guard(command(), EcuState.ENGAGED, Gear.DRIVE, 0.0)
+    guard.note_cycle(True)
+    guard.note_cycle(False)  # released for a cycle: the next angle starts from the measurement
+    guard.note_cycle(True)
+    _, reason = guard.guard(command(steer_angle_rad=0.2), EcuState.ENGAGED, Gear.DRIVE, 0.01)
+    assert reason is None
+
+
+def test_the_passive_replacement_is_exactly_passive_and_remembered() -> None:
+    guard = TxGuard(CAL)
+    frame, reason = guard.guard(command(ecu_state=EcuState.READY), EcuState.READY, Gear.REVERSE, 3.0)
+    assert reason is not None
+    assert frame == DbwCommand(0.0, 0.0, 0.0, False, False, True, False, EcuState.READY, Gear.REVERSE)
+    assert frame.engage is False and frame.park_brake is False and frame.steer_enable is False
+    assert guard.last_sent is frame and guard.last_sent_s == 3.0
+    # A later safe stop starts afresh, from the (released) brake of that passive command.
+    frame, reason = guard.guard(command(ecu_state=EcuState.SAFE_STOP), EcuState.SAFE_STOP, Gear.REVERSE, 3.01)
+    assert reason is not None and frame.brake_bar == 0.0 and frame.engage
+
+
+def test_the_safe_stop_command_field_by_field() -> None:
+    guard = TxGuard(CAL)  # nothing sent yet: the ramp starts from a released brake
+    frame, _ = guard.guard(command(ecu_state=EcuState.SAFE_STOP), EcuState.SAFE_STOP, Gear.REVERSE, 10.0)
+    assert frame == DbwCommand(0.0, 0.0, 0.0, True, False, True, False, EcuState.SAFE_STOP, Gear.REVERSE)
+    assert frame.park_brake is False and frame.steer_enable is False
+    guard = TxGuard(CAL)
+    guard.guard(
+        command(throttle_pct=0.0, brake_bar=20.0, steer_enable=False), EcuState.ENGAGED, Gear.DRIVE, 10.0
+    )
+    bad = command(brake_bar=5.0, steer_enable=False)  # throttle and brake together
+    half = FALLBACK_BRAKE_RAMP_S / 2
+    first, _ = guard.guard(bad, EcuState.ENGAGED, Gear.DRIVE, 10.0)
+    mid, _ = guard.guard(bad, EcuState.ENGAGED, Gear.DRIVE, 10.0 + half)
+    end, _ = guard.guard(bad, EcuState.ENGAGED, Gear.DRIVE, 10.0 + 2 * FALLBACK_BRAKE_RAMP_S)
+    assert first.brake_bar == 20.0
+    assert mid.brake_bar == pytest.approx(20.0 + (CAL.hold_brake_bar - 20.0) / 2)
+    assert end.brake_bar == CAL.hold_brake_bar and not end.steer_enable

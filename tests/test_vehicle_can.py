@@ -492,6 +492,13 @@ def test_stale_limit_scales_with_the_cycle_time_and_rx_time_overrides_the_stamp(
     assert rx.counts(EstopRadio)["stale"] == 1
 
 
+def test_a_receive_time_that_is_not_a_number_is_stale() -> None:
+    rx, s = VehicleRx(CODEC), Stream()
+    assert rx.feed(s.msg(0.0), 0.001, rx_time_s=math.nan) is None
+    assert rx.counts(WheelSpeeds)["stale"] == 1
+    assert "is not a number" in rx.stats()["frames"]["GW_WheelSpeeds"]["last_reject"]["detail"]
+
+
 def test_age_check_can_be_turned_off() -> None:
     rx, s = VehicleRx(CODEC, max_age_cycles=None), Stream()
     assert rx.feed(s.msg(0.0), 1000.0) is not None
