@@ -146,7 +146,7 @@ def _run_tests(sources: list[SafetySource], tests: list[str], jobs: int) -> int:
     BUILD.mkdir(parents=True)
     include = ",".join(str(ROOT / s.path) for s in sources)
     cov = [sys.executable, "-m", "coverage"]
-    pytest_args = ["-q", "-p", "no:cacheprovider", "-m", "not slow and not hil"]
+    pytest_args = ["-q", "-rfE", "-p", "no:cacheprovider", "-m", "not slow and not hil"]
     if jobs > 1:
         # per test, not per file: test_safety.py alone is half of the time
         pytest_args += ["-n", str(jobs), "--dist", "load"]

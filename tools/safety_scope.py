@@ -13,7 +13,6 @@ safety scope beside the whole file.
 from __future__ import annotations
 
 import ast
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,13 +27,13 @@ class SafetySource:
 
 
 SAFETY_SOURCES: tuple[SafetySource, ...] = (
-    SafetySource("ecu/safety.py"),
-    SafetySource("ecu/core.py"),
-    SafetySource("ecu/tx_guard.py", optional=True),
-    SafetySource("protocol/e2e.py"),
-    SafetySource("protocol/vehicle_can.py", parts=("VehicleRx",)),
+    SafetySource("bywire/ecu/safety.py"),
+    SafetySource("bywire/ecu/core.py"),
+    SafetySource("bywire/ecu/tx_guard.py", optional=True),
+    SafetySource("bywire/protocol/e2e.py"),
+    SafetySource("bywire/protocol/vehicle_can.py", parts=("VehicleRx",)),
     SafetySource(
-        "protocol/canopen_node.py",
+        "bywire/protocol/canopen_node.py",
         parts=("HeartbeatConsumer", "EcuNode.request_fresh", "EcuNode._on_rpdo"),
     ),
 )
@@ -54,7 +53,7 @@ SPEC_TEST_GLOBS: tuple[str, ...] = ("tests/test_safety*.py", "tests/test_tx_guar
 COVERAGE_ONLY_TESTS: tuple[str, ...] = ("tests/test_reverse.py", "tests/test_ecu_safety_app.py")
 
 # Mutation testing runs where a mutant is cheap to judge: the state machine and the guard.
-DEFAULT_MUTATE: tuple[str, ...] = ("ecu/safety.py", "ecu/tx_guard.py")
+DEFAULT_MUTATE: tuple[str, ...] = ("bywire/ecu/safety.py", "bywire/ecu/tx_guard.py")
 
 
 class ScopeError(RuntimeError):
@@ -83,20 +82,15 @@ def spec_test_files(root: Path = ROOT) -> list[str]:
 
 
 def package_dirs(root: Path = ROOT) -> dict[str, str]:
-    """setuptools' package-dir mapping from pyproject.toml: import name -> folder (bywire.ecu -> ecu).
-
-    Read rather than restated, so that a folder mapped later is found by the tools too."""
-    with (root / "pyproject.toml").open("rb") as f:
-        data = tomllib.load(f)
-    mapping = data.get("tool", {}).get("setuptools", {}).get("package-dir", {})
-    if not isinstance(mapping, dict) or not mapping:
-        raise ScopeError("pyproject.toml has no [tool.setuptools] package-dir mapping")
-    return {str(k): str(v) for k, v in mapping.items()}
+    """Import name -> folder of the package the tools stage and measure: `bywire` is the folder
+    bywire/ (the path a reader sees is the path Python imports)."""
+    if not (root / "bywire" / "__init__.py").is_file():
+        raise ScopeError(f"{root}: no bywire/ package folder")
+    return {"bywire": "bywire"}
 
 
 def module_name(path: str, root: Path = ROOT) -> str:
-    """The import name of a folder path, through the package-dir mapping: ecu/safety.py ->
-    bywire.ecu.safety. The longest mapped folder wins (a mapping may nest)."""
+    """The import name of a file path: bywire/ecu/safety.py -> bywire.ecu.safety."""
     rel = Path(path).with_suffix("")
     best: tuple[int, str] | None = None
     for package, folder in package_dirs(root).items():

@@ -656,7 +656,7 @@ class EcuNode:
         self.node._write_callbacks.remove(self.node.nmt.on_write)
         self.network.unsubscribe(NMT_COB_ID, self.node.nmt.on_command)
         self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
-        self.node.add_write_callback(self._on_sdo_write)
+        self.node.add_write_callback(self._on_sdo_write)  # type: ignore[no-untyped-call]  # canopen untyped
         self.network.subscribe(NMT_COB_ID, self._on_nmt)
         self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
         self.network.subscribe(self.rpdo.cob_id, self._on_rpdo)
@@ -904,7 +904,7 @@ class EcuNode:
                 )
                 return
         try:
-            self.node.sdo.on_request(can_id, data, timestamp)
+            self.node.sdo.on_request(can_id, data, timestamp)  # type: ignore[no-untyped-call]
         except Exception as exc:
             # canopen's server raises from its own abort path when a segment arrives with no
             # transfer open (its index is still None): answer with a general abort instead.
@@ -1125,7 +1125,7 @@ class _PumpedSdoClient(SdoClient):
     def __init__(
         self, rx_cobid: int, tx_cobid: int, od: ObjectDictionary, pump: Callable[[], None], timeout_s: float
     ) -> None:
-        super().__init__(rx_cobid, tx_cobid, od)
+        super().__init__(rx_cobid, tx_cobid, od)  # type: ignore[no-untyped-call]
         self._pump = pump
         self.RESPONSE_TIMEOUT = timeout_s
 
@@ -1144,7 +1144,7 @@ class _PumpedSdoClient(SdoClient):
             if response[0] == _SDO_RESPONSE_ABORTED:
                 (abort_code,) = struct.unpack_from("<L", response, 4)
                 raise SdoAbortedError(abort_code)
-            return response
+            return bytes(response)
 
 
 class HostMaster:
@@ -1297,7 +1297,7 @@ class HostMaster:
     def sdo_read(
         self, index: int, subindex: int, *, what: str = "a read", idle: Callable[[], object] | None = None
     ) -> bytes:
-        return self._sdo_call(lambda: self._sdo.upload(index, subindex), index, subindex, what, idle)
+        return bytes(self._sdo_call(lambda: self._sdo.upload(index, subindex), index, subindex, what, idle))
 
     def sdo_write(
         self,

@@ -82,7 +82,7 @@ def fast_frozen_init(cls: type[_T]) -> type[_T]:
     src = f"def __init__(self, {params}):\n" + "".join(f"    _set_{n}(self, {n})\n" for n in names)
     exec(src, ns)
     ns["__init__"].__qualname__ = f"{cls.__qualname__}.__init__"
-    cls.__init__ = ns["__init__"]  # type: ignore[method-assign,misc]
+    cls.__init__ = ns["__init__"]  # type: ignore[method-assign]
     return cls
 
 

@@ -139,12 +139,8 @@ class ImageContents:
 
 
 def _package_dir(package: str) -> Path:
-    module = importlib.import_module(package)
-    # Editable installs map bywire.protocol -> protocol/ via package-dir; __path__ follows it.
-    paths = list(getattr(module, "__path__", []))
-    if len(paths) != 1:
-        raise FirmwareError(f"package {package}: expected one source directory, found {paths}")
-    return Path(paths[0])
+    """The folder an installed package's files are read from to build an image."""
+    return Path(str(importlib.resources.files(package)))
 
 
 def _bywire_files() -> dict[str, bytes]:

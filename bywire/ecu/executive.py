@@ -144,14 +144,14 @@ class CycleStats:
         """How many of the most recent cycles the rings still hold."""
         return min(self.cycles, self.capacity)
 
-    def _ring(self, kind: StatKind) -> array:
+    def _ring(self, kind: StatKind) -> array[float]:
         if kind == "lateness_us":
             return self._lateness_us
         if kind == "compute_us":
             return self._compute_us
         raise ValueError(f"CycleStats: unknown statistic {kind!r} (expected 'lateness_us' or 'compute_us')")
 
-    def _latest(self, ring: array, n: int) -> list[float]:
+    def _latest(self, ring: array[float], n: int) -> list[float]:
         """The most recent `n` samples (unordered: only sorted or max-ed afterwards)."""
         n = min(n, self.retained)
         if n == 0:

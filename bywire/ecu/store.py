@@ -281,7 +281,7 @@ def _as_tuple(kind: type | tuple[type, ...]) -> tuple[type, ...]:
 def _check_slot(value: object, path: StorePath, key: str = "slot") -> Slot:
     if value not in SLOTS:
         raise StoreError(path, f"{key}: expected one of {list(SLOTS)}, got {value!r}")
-    return value  # type: ignore[return-value]
+    return value
 
 
 # --- store directory ----------------------------------------------------------------------------
