@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bywire.host.runtime.mcap_log import register_type
+from bywire.host.runtime.log_schema import register_type
 
 
 class Mode(enum.IntEnum):

@@ -25,15 +25,9 @@ from mcap.writer import Writer
 from runtime_log_types import Faults, Mode, Point, Pose, Status
 
 from bywire.host.runtime import log_cli
-from bywire.host.runtime.mcap_log import (
-    LogError,
-    McapLogReader,
-    McapRecorder,
-    decode_object,
-    read_frames,
-    read_objects,
-    schema_bytes,
-)
+from bywire.host.runtime.log_schema import LogError, decode_object, schema_bytes
+from bywire.host.runtime.mcap_reader import McapLogReader, read_frames, read_objects
+from bywire.host.runtime.mcap_recorder import McapRecorder
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

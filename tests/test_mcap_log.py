@@ -26,19 +26,11 @@ from mcap.reader import make_reader
 from runtime_log_types import Faults, Mode, Point, Pose, Source, Status, Tick
 
 from bywire.host.runtime import log_cli
+from bywire.host.runtime.can_frame import CAN_FRAME_SCHEMA
 from bywire.host.runtime.live_view import LiveView
-from bywire.host.runtime.mcap_log import (
-    CAN_FRAME_SCHEMA,
-    LogError,
-    McapLogReader,
-    McapRecorder,
-    decode_object,
-    encode_object,
-    json_schema,
-    read_frames,
-    read_objects,
-    register_type,
-)
+from bywire.host.runtime.log_schema import LogError, decode_object, encode_object, json_schema, register_type
+from bywire.host.runtime.mcap_reader import McapLogReader, read_frames, read_objects
+from bywire.host.runtime.mcap_recorder import McapRecorder
 from bywire.host.runtime.store import ObjectStore
 
 TESTS_DIR = Path(__file__).parent
@@ -313,7 +305,7 @@ def test_standard_mcap_reader_opens_our_closed_files(tmp_path: Path) -> None:
 CHILD = """
 import sys, time
 from runtime_log_types import Tick
-from bywire.host.runtime.mcap_log import McapRecorder
+from bywire.host.runtime.mcap_recorder import McapRecorder
 from bywire.host.runtime.store import ObjectStore
 
 rec = McapRecorder(sys.argv[1], flush_interval_s=float(sys.argv[2]))

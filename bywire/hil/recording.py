@@ -23,7 +23,9 @@ import can
 from mcap.writer import CompressionType, Writer
 
 from bywire.hil.sil_bus import received_copy
-from bywire.host.runtime.mcap_log import LogError, McapLogReader, McapRecorder, RawMessage
+from bywire.host.runtime.log_schema import LogError
+from bywire.host.runtime.mcap_reader import McapLogReader, RawMessage
+from bywire.host.runtime.mcap_recorder import McapRecorder
 from bywire.protocol.timebase import rx_time_s
 
 

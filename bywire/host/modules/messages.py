@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from bywire.host.runtime.mcap_log import register_type
+from bywire.host.runtime.log_schema import register_type
 from bywire.host.runtime.store import linear_interpolation
 from bywire.protocol.ecu_types import RequestFlags
 

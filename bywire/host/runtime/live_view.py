@@ -20,11 +20,10 @@ import can
 import foxglove
 from foxglove import Channel, Context, Schema
 
-from bywire.host.runtime.mcap_log import (
-    CAN_TOPIC_PREFIX,
+from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX, CanFrame
+from bywire.host.runtime.log_schema import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
-    CanFrame,
     LogError,
     encode_object,
     schema_bytes,

@@ -29,7 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from bywire.host.runtime.mcap_log import CAN_TOPIC_PREFIX, LogError, McapLogReader, read_objects
+from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX
+from bywire.host.runtime.log_schema import LogError
+from bywire.host.runtime.mcap_reader import McapLogReader, read_objects
 
 GAP_FACTOR = 3.0  # an interval longer than this many periods is a gap
 

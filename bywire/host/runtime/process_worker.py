@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bywire.clock import Clock
-from bywire.host.runtime.mcap_log import register_type
+from bywire.host.runtime.log_schema import register_type
 from bywire.host.runtime.module import ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.worker import (

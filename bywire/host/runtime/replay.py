@@ -39,7 +39,9 @@ from bywire.hil.scenario import parse_scenario
 from bywire.host.config import HostConfig, parse_host_config
 from bywire.host.modules import KINDS, HostResources
 from bywire.host.modules.messages import RUN_INFO, RunInfo
-from bywire.host.runtime.mcap_log import CAN_TOPIC_PREFIX, LogError, read_objects
+from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX
+from bywire.host.runtime.log_schema import LogError
+from bywire.host.runtime.mcap_reader import read_objects
 from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec, dependency_order
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST, SUPERVISOR_EVENTS, SupervisorEvent

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from bywire.host.runtime.mcap_log import register_type
+from bywire.host.runtime.log_schema import register_type
 
 SUPERVISOR_EVENTS = "/supervisor/events"
 SAFETY_LIMIT = "/supervisor/limit"

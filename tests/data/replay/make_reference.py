@@ -14,7 +14,8 @@ from pathlib import Path
 
 from bywire.hil.scenario import load_scenario
 from bywire.hil.sil import run_sil
-from bywire.host.runtime.mcap_log import McapRecorder, read_objects
+from bywire.host.runtime.mcap_reader import read_objects
+from bywire.host.runtime.mcap_recorder import McapRecorder
 
 OUT = Path(__file__).with_name("demo_10s.mcap")
 
