@@ -53,7 +53,8 @@ from bywire.host.roadnet.route import MissionPlanner, Route
 
 from . import rules
 from .context import BehaviourContext, BehaviourParams, Plan
-from .drive import drive_family, report_key
+from .drive import drive_family
+from .drive.common import report_key
 from .hsm import Fired, Machine, State
 from .intersection import intersection_family
 from .intersection_map import IntersectionMap

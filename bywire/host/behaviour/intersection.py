@@ -50,7 +50,7 @@ from .context import BehaviourContext
 from .hsm import NoProgress, State, Transition
 from .intersection_manager import IntersectionManager
 from .precedence import Turn
-from .recovery import mission_done
+from .recovery.mission_complete import mission_done
 
 __all__ = ["intersection_family"]
 
