@@ -9,9 +9,11 @@
   timers driving each family's recovery); `situation`: its typed input (`Situation`) and output
   (`BehaviourCommand`); `context`, `route_view`, `lanes`, `manoeuvre`, `intersection_map`,
   `intersection_manager`: what the states read and compute.
-- One file per state family (Fig. 11): `drive` (DriveOnLane, LaneChange, DriveKTurn, PassObstacle),
-  `intersection` (Fig. 15 / Sec. 9.3), `zone` (a straight-line stand-in until the zone planner),
-  `recovery` (per family, global recovery, Replan).
+- One package per state family (Fig. 11), one module per state, as AnnieWAY's planner has one file per
+  state: `drive` (DriveOnLane, LaneChange, PassObstacle, DriveKTurn, DriveRecovery), `intersection`
+  (Fig. 15 / Sec. 9.3), `zone` (a straight-line stand-in until the zone planner); each holds a `family`
+  module (the composite state itself) and the helpers its states share. `recovery`: the top-level
+  Replan, GlobalRecovery and MissionComplete.
 - `behaviour`: `Behaviour.step(situation) -> BehaviourCommand`, the whole layer as one object.
 - `diagram`: the hierarchy as one Mermaid or PNG diagram, generated from the code.
 - `bench`: `bywire bench urban` timings of the above and of the lateral controller.

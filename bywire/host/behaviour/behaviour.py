@@ -6,8 +6,8 @@
     longitudinal_step(state, command.longitudinal_inputs(v), longitudinal_params)
 
 The statechart (`build_statechart`, Fig. 11's main level): Drive (initial), Intersection, Zone, Replan,
-GlobalRecovery, MissionComplete; the families' substates are in drive.py, intersection.py, zone.py and
-recovery.py, the core in hsm.py. A cycle:
+GlobalRecovery, MissionComplete; the families are the packages drive/, intersection/ and zone/ (one module
+per state), the top-level recovery states are in recovery/, the core in hsm.py. A cycle:
 
 1. Check the situation (ValueError naming the field; time may not run backwards).
 2. E-stop PAUSE or DISABLE: hold. The machine does not step, no manager sees the cycle, and the

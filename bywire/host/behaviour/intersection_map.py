@@ -5,7 +5,7 @@ intersection is where lanes are joined by exits. So an `IntersectionInfo` is a c
 the lane-to-lane EXIT edges (their start and end waypoints, joined through shared waypoints and through
 waypoints closer than `MERGE_RADIUS_M`: the two turns of an L corner share none), plus any stop
 waypoint on its own (a stop sign without exits is an intersection of one approach). Exits into and
-out of zones are the zone's business (zone.py), not an intersection's.
+out of zones are the zone's business (the zone/ family), not an intersection's.
 
 Per intersection: the approach waypoints (where exits leave, with the approach heading of their lane),
 the entry waypoints (where exits arrive), the stop lines among the approaches, the lanes that touch it

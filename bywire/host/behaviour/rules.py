@@ -264,8 +264,8 @@ KTURN_TRIGGER_M: Final = 20.0  # AnnieWAY code TRIGGER_DIST_KTURN
 KTURN_RADIUS_M: Final = 5.5  # ours: atan(2.72 / 5.5) = 26 deg of steer, 4 deg below the lock for control
 KTURN_SWITCH_DISTANCE_M: Final = 0.5  # ours: a leg of the K-turn ends within this of its end point
 
-# Zones: the stand-in path (zone.py) lines up with a spot this far before its first waypoint (ours: the
-# orbital controller halves an error every 3 m, so 8 m takes out 85 % of a misalignment).
+# Zones: the stand-in path (zone/navigator.py) lines up with a spot this far before its first waypoint
+# (ours: the orbital controller halves an error every 3 m, so 8 m takes out 85 % of a misalignment).
 ZONE_APPROACH_TRIGGER_M: Final = 30.0  # ours (AnnieWAY code: 10 m): time to slow down to zone speed
 ZONE_SPOT_ALIGN_M: Final = 8.0
 ZONE_PARK_DWELL_S: Final = 1.0  # ours: stand at the checkpoint in the spot, then back out

@@ -1,0 +1,36 @@
+"""ZoneEnter (seed 000 Secs. 8, 10): to the next target, a spot's alignment point and entry, or the exit.
+
+On entry the navigator's forward leg to the target is begun; ZonePark once the front bumper is at the
+spot.
+"""
+
+from __future__ import annotations
+
+from ..context import BehaviourContext
+from ..hsm import State, Transition
+from .navigator import front_in_spot, navigator
+
+__all__ = ["zone_enter_state"]
+
+
+def _enter_entry(ctx: BehaviourContext) -> None:
+    ego = ctx.situation.ego
+    leg = navigator(ctx).forward_leg(ego.x_m, ego.y_m)
+    if leg is not None:
+        ctx.begin_legs((leg,))
+
+
+def _enter_activity(ctx: BehaviourContext) -> None:
+    target = navigator(ctx).target
+    what = "the exit" if target is None or target.kind == "exit" else f"spot {target.point.lane_id}"
+    ctx.say(f"zone: driving to {what} (stand-in straight lines)")
+
+
+def zone_enter_state() -> State[BehaviourContext]:
+    return State(
+        "ZoneEnter",
+        doc="to the spot (or straight to the exit)",
+        entry=_enter_entry,
+        activity=_enter_activity,
+        transitions=(Transition("ZonePark", front_in_spot, "front bumper at the spot"),),
+    )

@@ -1,0 +1,76 @@
+"""The Zone state itself (seed 000 Secs. 8, 10): the navigator's life, what holds in every substate, and
+the substates.
+
+On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
+followed at the zone speed. The family leaves to Drive once the rear axle is past the perimeter exit
+(route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
+"""
+
+from __future__ import annotations
+
+from .. import rules
+from ..context import BehaviourContext
+from ..hsm import NoProgress, State, Transition
+from .approach import zone_approach_state
+from .enter import zone_enter_state
+from .leave import zone_leave_state
+from .navigator import ZoneNavigator, zone_speed
+from .park import zone_park_state
+from .recovery import zone_recovery_state
+
+__all__ = ["zone_family"]
+
+
+def _enter(ctx: BehaviourContext) -> None:
+    ctx.manoeuvre_data["zone"] = ZoneNavigator(ctx)
+
+
+def _exit(ctx: BehaviourContext) -> None:
+    nav = ctx.manoeuvre_data.pop("zone", None)
+    ctx.end_legs()
+    target = nav.target if isinstance(nav, ZoneNavigator) else None
+    if target is not None and target.kind == "exit":  # route tracking resumes at the perimeter exit
+        ego = ctx.situation.ego
+        s, lateral, _ = ctx.view.locate(ego.x_m, ego.y_m, target.exit_route_s_m, 1.0, 10.0)
+        ctx.ego_s_m, ctx.ego_lateral_m = s, lateral
+
+
+def _left_zone(ctx: BehaviourContext) -> bool:
+    nav = ctx.manoeuvre_data.get("zone")
+    if not isinstance(nav, ZoneNavigator) or not ctx.legs:
+        return False
+    target = nav.target
+    return (
+        target is not None
+        and target.kind == "exit"
+        and ctx.legs[ctx.leg_index].direction == 1
+        and ctx.leg_s_m >= nav.exit_s_m
+    )
+
+
+def _follow(ctx: BehaviourContext) -> None:
+    if ctx.legs:
+        ctx.plan.leg = ctx.legs[ctx.leg_index]
+        ctx.plan.leg_s_m = ctx.leg_s_m
+        ctx.plan.profile = False
+    ctx.cap(zone_speed(ctx), "zone speed")
+
+
+def zone_family() -> State[BehaviourContext]:
+    return State(
+        "Zone",
+        doc="zones and parking (Sec. 10; stand-in straight-line navigation)",
+        initial="ZoneApproach",
+        entry=_enter,
+        exit=_exit,
+        activity=_follow,
+        no_progress=NoProgress(rules.ZONE_NO_PROGRESS_S, "ZoneRecovery"),
+        transitions=(Transition("Drive", _left_zone, "past the perimeter exit"),),
+        children=(
+            zone_approach_state(),
+            zone_enter_state(),
+            zone_park_state(),
+            zone_leave_state(),
+            zone_recovery_state(),
+        ),
+    )

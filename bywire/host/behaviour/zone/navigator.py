@@ -1,0 +1,142 @@
+"""The zone navigation's stand-in (seed 000 Sec. 10 until its hybrid A*): `ZoneNavigator`, and what the
+Zone states read of it.
+
+Straight lines (`manoeuvre.polyline_leg`) from where we are to a point `ZONE_SPOT_ALIGN_M` before the
+spot on its axis, into the spot to its checkpoint, back out along the axis to that point, and from there
+straight to the perimeter exit and on along the exit edge. The route's zone piece (`Route.drive_pieces`:
+ZONE, PARK, UNPARK edges between an exit into the perimeter and one out of it) gives the targets in
+order: each parking spot (its first waypoint, and the checkpoint at its second), then the perimeter
+exit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bywire.host.roadnet.graph import Edge, EdgeKind
+from bywire.host.roadnet.ids import WaypointId
+
+from .. import rules
+from ..context import BehaviourContext
+from ..manoeuvre import Leg, polyline_leg
+
+__all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "zone_speed"]
+
+_ZONE = frozenset({EdgeKind.ZONE})
+_EXIT_SAMPLE_M = 0.5
+
+
+@dataclass(frozen=True)
+class ZoneTarget:
+    kind: str  # "spot" or "exit"
+    point: WaypointId  # spot: its first waypoint; exit: the perimeter point
+    spot_end: WaypointId | None = None  # spot: its second waypoint (the checkpoint)
+    exit_edge: Edge | None = None  # exit: the route's edge out of the zone
+    exit_route_s_m: float = 0.0  # exit: arc length of the perimeter point along the route
+
+
+class ZoneNavigator:
+    """The stand-in zone navigation for one pass through a zone (see the module docstring)."""
+
+    def __init__(self, ctx: BehaviourContext) -> None:
+        view = ctx.view
+        piece = view.next_piece(ctx.ego_s_m, _ZONE)
+        assert piece is not None
+        self.graph = ctx.graph
+        self.entry_s_m = piece.start_s_m
+        edges = view.edges
+        targets: list[ZoneTarget] = []
+        for i in range(piece.first, piece.last + 1):
+            e = edges[i]
+            if e.kind == EdgeKind.PARK:
+                targets.append(ZoneTarget("spot", e.start, e.end))
+        last = edges[piece.last]
+        if last.end.is_perimeter:
+            exit_edge = edges[piece.last + 1] if piece.last + 1 < len(edges) else None
+            targets.append(ZoneTarget("exit", last.end, None, exit_edge, piece.end_s_m))
+        self.targets = tuple(targets)
+        self.index = 0
+        self.parked_since_s: float | None = None
+        self.wp1_s_m = math.inf  # on the current forward leg
+        self.wp2_s_m = math.inf
+        self.exit_s_m = math.inf
+
+    @property
+    def target(self) -> ZoneTarget | None:
+        return self.targets[self.index] if self.index < len(self.targets) else None
+
+    def _xy(self, v: WaypointId) -> tuple[float, float]:
+        return self.graph.vertex_xy(v)
+
+    def align_point(self, target: ZoneTarget) -> tuple[float, float]:
+        assert target.spot_end is not None
+        (x1, y1), (x2, y2) = self._xy(target.point), self._xy(target.spot_end)
+        d = math.hypot(x2 - x1, y2 - y1) or 1.0
+        return x1 - rules.ZONE_SPOT_ALIGN_M * (x2 - x1) / d, y1 - rules.ZONE_SPOT_ALIGN_M * (y2 - y1) / d
+
+    def forward_leg(self, x_m: float, y_m: float) -> Leg | None:
+        """From (x, y) to the current target (see the module docstring); None when none is left."""
+        target = self.target
+        if target is None:
+            return None
+        points: list[tuple[float, float]] = [(x_m, y_m)]
+        if target.kind == "spot":
+            assert target.spot_end is not None
+            points += [self.align_point(target), self._xy(target.point), self._xy(target.spot_end)]
+        else:
+            points.append(self._xy(target.point))
+            if target.exit_edge is not None and len(target.exit_edge.path) > 1:
+                p = target.exit_edge.path
+                s = np.arange(_EXIT_SAMPLE_M, p.length_m, _EXIT_SAMPLE_M)
+                ex, ey, _, _ = p.sample(s)
+                points += list(zip(ex.tolist(), ey.tolist(), strict=True))
+                points.append((float(p.x_m[-1]), float(p.y_m[-1])))
+        leg = polyline_leg(points, 1)
+        if target.kind == "spot":
+            assert target.spot_end is not None
+            x1, y1 = self._xy(target.point)
+            self.wp1_s_m = leg.locate_anywhere(x1, y1)
+            self.wp2_s_m = leg.end_s_m
+            self.exit_s_m = math.inf
+        else:
+            px, py = self._xy(target.point)
+            self.exit_s_m = leg.locate_anywhere(px, py)
+            self.wp1_s_m = self.wp2_s_m = math.inf
+        return leg
+
+    def back_out_leg(self, x_m: float, y_m: float) -> Leg | None:
+        """Reverse from (x, y) to the alignment point of the spot just left (the previous target)."""
+        if self.index == 0 or self.targets[self.index - 1].kind != "spot":
+            return None
+        return polyline_leg([(x_m, y_m), self.align_point(self.targets[self.index - 1])], -1)
+
+
+def navigator(ctx: BehaviourContext) -> ZoneNavigator:
+    nav = ctx.manoeuvre_data.get("zone")
+    assert isinstance(nav, ZoneNavigator)
+    return nav
+
+
+def zone_speed(ctx: BehaviourContext) -> float:
+    view = ctx.view
+    limits = [
+        e.speed_max_mps
+        for e in view.edges
+        if e.kind in (EdgeKind.ZONE, EdgeKind.PARK) and e.speed_max_mps is not None
+    ]
+    return min([rules.ZONE_SPEED_MAX_MPS, *limits])
+
+
+def front_in_spot(ctx: BehaviourContext) -> bool:
+    nav = navigator(ctx)
+    target = nav.target
+    return (
+        target is not None
+        and target.kind == "spot"
+        and bool(ctx.legs)
+        and ctx.legs[ctx.leg_index].direction == 1
+        and ctx.leg_s_m + ctx.params.rear_axle_to_front_m >= nav.wp1_s_m
+    )
