@@ -94,7 +94,8 @@ def bench_core_step(n: int) -> dict[str, Any]:
 def bench_codec(n: int) -> dict[str, Any]:
     """Vehicle-CAN encode+E2E and receive checks per frame vs. cantools' bare encode of the same frame."""
     from bywire.protocol.ecu_types import EcuState
-    from bywire.protocol.vehicle_can import DbwCommand, VehicleCodec, VehicleRx, VehicleTx
+    from bywire.protocol.vehicle_can import DbwCommand, VehicleCodec, VehicleTx
+    from bywire.protocol.vehicle_rx import VehicleRx
 
     codec = VehicleCodec()
     tx = VehicleTx(codec)

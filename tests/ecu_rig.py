@@ -36,10 +36,10 @@ from bywire.protocol.vehicle_can import (
     SteerReport,
     VehicleCodec,
     VehicleFrame,
-    VehicleRx,
     VehicleTx,
     WheelSpeeds,
 )
+from bywire.protocol.vehicle_rx import VehicleRx
 
 ENGAGE = RequestFlags.ENGAGE
 RELEASED = RequestFlags.NONE

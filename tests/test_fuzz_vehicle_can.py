@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bywire.protocol.e2e import crc_ok
-from bywire.protocol.vehicle_can import RejectReason, VehicleCodec, VehicleFrame, VehicleRx, VehicleTx
+from bywire.protocol.vehicle_can import RejectReason, VehicleCodec, VehicleFrame, VehicleTx
+from bywire.protocol.vehicle_rx import VehicleRx
 
 CODEC = VehicleCodec()
 KNOWN_IDS = [m.frame_id for m in CODEC.messages]

@@ -22,18 +22,17 @@ from bywire.protocol.vehicle_can import (
     DriverInputs,
     EstopRadio,
     FrameError,
-    FrameMonitor,
     Motion,
     RadarTarget,
     RejectReason,
     SteerReport,
     VehicleCodec,
     VehicleFrame,
-    VehicleRx,
     VehicleTx,
     WheelSpeeds,
     default_dbc_path,
 )
+from bywire.protocol.vehicle_rx import FrameMonitor, VehicleRx
 
 CODEC = VehicleCodec()  # loading is pure; one instance keeps hypothesis examples fast
 

@@ -31,7 +31,7 @@ SAFETY_SOURCES: tuple[SafetySource, ...] = (
     SafetySource("bywire/ecu/core.py"),
     SafetySource("bywire/ecu/tx_guard.py", optional=True),
     SafetySource("bywire/protocol/e2e.py"),
-    SafetySource("bywire/protocol/vehicle_can.py", parts=("VehicleRx",)),
+    SafetySource("bywire/protocol/vehicle_rx.py", parts=("VehicleRx",)),
     SafetySource(
         "bywire/protocol/canopen_node.py",
         parts=("HeartbeatConsumer", "EcuNode.request_fresh", "EcuNode._on_rpdo"),

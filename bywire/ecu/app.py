@@ -68,10 +68,10 @@ from bywire.protocol.vehicle_can import (
     Motion,
     SteerReport,
     VehicleCodec,
-    VehicleRx,
     VehicleTx,
     WheelSpeeds,
 )
+from bywire.protocol.vehicle_rx import VehicleRx
 
 VEHICLE_REPORTS = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
 VEHICLE_TIMEOUT_CYCLES = 10.0

@@ -50,9 +50,9 @@ from bywire.protocol.vehicle_can import (
     SteerReport,
     VehicleCodec,
     VehicleFrame,
-    VehicleRx,
     WheelSpeeds,
 )
+from bywire.protocol.vehicle_rx import VehicleRx
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, VehicleInputs
 
 GATEWAY_PERIOD_S = 0.010  # GW_* frames, GenMsgCycleTime 10 ms in vehicle.dbc

@@ -18,7 +18,7 @@ E2E profile 1 (SWS E2ELibrary):
   accepts the next CRC-valid frame as a re-sync whatever its counter (`CounterStatus.RESYNC`) except
   the last accepted counter itself: a repeat is never fresh (DESIGN section 4), so a sender frozen on
   its last frame stays timed out for as long as it repeats it. The timeout itself is the receiver's
-  (vehicle_can).
+  (vehicle_rx).
 """
 
 from __future__ import annotations

@@ -121,7 +121,8 @@ from bywire.protocol.v2x.codec import (
     encode,
 )
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
-from bywire.protocol.vehicle_can import Motion, VehicleCodec, VehicleRx, WheelSpeeds
+from bywire.protocol.vehicle_can import Motion, VehicleCodec, WheelSpeeds
+from bywire.protocol.vehicle_rx import VehicleRx
 
 MOTION_STALE_S = 0.1
 STANDSTILL_MPS = 0.5

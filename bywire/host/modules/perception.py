@@ -15,7 +15,8 @@ import can
 from bywire.host.modules.messages import LEAD, ODOMETRY, RADAR, LeadTrack, Odometry, RadarReport
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.protocol.timebase import rx_time_s
-from bywire.protocol.vehicle_can import RadarTarget, VehicleCodec, VehicleRx
+from bywire.protocol.vehicle_can import RadarTarget, VehicleCodec
+from bywire.protocol.vehicle_rx import VehicleRx
 
 RADAR_STALE_S = 0.25  # 5 radar cycles without a target: treat the lane as free
 
