@@ -15,18 +15,20 @@ from shared_data import shared_data_dir
 from bywire.protocol.v2x.codec import (
     DecodeReason,
     DriveDirection,
-    EtsiCamSchema,
-    EtsiSchemaMissing,
     V2xDecodeError,
     VehicleState,
     decode,
+    encode,
+    unix_to_timestamp_its,
+)
+from bywire.protocol.v2x.etsi_cam import (
+    EtsiCamSchema,
+    EtsiSchemaMissing,
     decode_any,
     decode_etsi_cam,
-    encode,
     etsi_asn1_dir,
     from_etsi_cam,
     resolve_generation_delta,
-    unix_to_timestamp_its,
 )
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver, haversine_m
 

@@ -33,16 +33,14 @@ from bywire.bench_cli import add_timed_arguments, run_timed
 
 from .codec import (
     DriveDirection,
-    EtsiSchemaMissing,
     VehicleState,
     compiled_spec,
     decode,
     encode,
-    etsi_asn1_dir,
-    from_etsi_cam,
     timestamp_its_to_unix,
     unix_to_timestamp_its,
 )
+from .etsi_cam import EtsiSchemaMissing, etsi_asn1_dir, from_etsi_cam
 from .fuzz import V2xFuzzer
 from .meter import percentile
 from .receiver import GeoPoint, ReceiverParams, V2vReceiver

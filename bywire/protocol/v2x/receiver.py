@@ -65,10 +65,9 @@ from .codec import (
     V2xMessage,
     VehicleState,
     decode,
-    etsi_asn1_dir,
-    from_etsi_cam,
     peek_header,
 )
+from .etsi_cam import etsi_asn1_dir, from_etsi_cam
 
 EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius; haversine error vs. WGS84 < 0.5 %, fine for km gates
 SECONDS_PER_DAY = 86_400
