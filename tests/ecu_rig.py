@@ -25,7 +25,8 @@ from bywire.ecu.app import EcuApp
 from bywire.ecu.calibration import default_calibration
 from bywire.ecu.executive import CycleStats, CyclicExecutive
 from bywire.hil.sil_bus import SimVirtualBus
-from bywire.protocol.canopen_node import HostMaster, NmtState
+from bywire.protocol.canopen_link.host_master import HostMaster
+from bywire.protocol.canopen_link.nmt import NmtState
 from bywire.protocol.ecu_types import EcuState, EstopMode, RequestFlags
 from bywire.protocol.host_link import HostRequest
 from bywire.protocol.vehicle_can import (

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from bywire.clock import SimClock
 from bywire.protocol.bus_url import open_bus, serve_virtual_bus, stop_bus_server, wait_for_port
-from bywire.protocol.canopen_node import (
+from bywire.protocol.canopen_link.dictionary import (
     ABORT_CANNOT_STORE,
     ABORT_DEVICE_STATE,
     ABORT_LOCAL_CONTROL,
@@ -32,15 +32,11 @@ from bywire.protocol.canopen_node import (
     ABORT_VALUE_TOO_LOW,
     EDS_PATH,
     MAX_CALIBRATION_BYTES,
-    EcuNode,
-    EcuRefusedError,
-    EventTimer,
-    HostMaster,
-    NmtCommand,
-    NmtState,
-    RefusedWrite,
-    parse_heartbeat,
 )
+from bywire.protocol.canopen_link.ecu_node import EcuNode, RefusedWrite
+from bywire.protocol.canopen_link.host_master import EcuRefusedError, HostMaster
+from bywire.protocol.canopen_link.nmt import NmtCommand, NmtState, parse_heartbeat
+from bywire.protocol.canopen_link.pump import EventTimer
 from bywire.protocol.ecu_types import EcuState, Fault, RequestFlags
 from bywire.protocol.host_link import (
     REQUEST_FIELDS,

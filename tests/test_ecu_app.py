@@ -14,7 +14,7 @@ import pytest
 from ecu_rig import Rig
 
 from bywire.ecu.calibration import _crc32, calibration_to_dict, default_calibration, dumps_calibration
-from bywire.protocol.canopen_node import EcuRefusedError
+from bywire.protocol.canopen_link.host_master import EcuRefusedError
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 
 

@@ -545,7 +545,8 @@ def host_heartbeat() -> Iterator[str]:
     """A host on a UDP host link sending its CANopen heartbeat (OPERATIONAL) every 50 ms; yields the
     ECU's end of the link."""
     from bywire.protocol.bus_url import open_bus
-    from bywire.protocol.canopen_node import HEARTBEAT_COB_BASE, HOST_NODE_ID, NmtState
+    from bywire.protocol.canopen_link.dictionary import HOST_NODE_ID
+    from bywire.protocol.canopen_link.nmt import HEARTBEAT_COB_BASE, NmtState
 
     ecu_port, host_port = _free_udp_port(), _free_udp_port()
     bus = open_bus(f"udp://127.0.0.1:{host_port}?peer=127.0.0.1:{ecu_port}")

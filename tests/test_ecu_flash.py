@@ -161,6 +161,10 @@ def test_real_image_is_self_contained_and_passes_its_selftest(tmp_path: Path) ->
         assert needed in names
     assert any(n.startswith("python_can_remote-") and n.endswith("/entry_points.txt") for n in names)
     assert "bywire/cli.py" not in names, "the image holds only what the ECU runs"
+    # The ECU's end of the CANopen link ships, the host's master never does: the self-test below then
+    # proves that nothing the ECU imports needs it.
+    assert "bywire/protocol/canopen_link/ecu_node.py" in names
+    assert "bywire/protocol/canopen_link/host_master.py" not in names, "the host's master is the host's"
     assert not [n for n in names if n.startswith("cryptography/")], "the ECU itself never verifies"
     # -I -S: only the zip and the standard library are importable, so this proves self-containment
     # (bywire.ecu.signing among the modules it imports, without the compiled cryptography package).

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 import bywire.ecu.app as app_module
 from bywire.ecu.app import LOOP_STALL_MAX_GAP_S
 from bywire.ecu.core import core_step
-from bywire.protocol.canopen_node import (
+from bywire.protocol.canopen_link.dictionary import (
     ABORT_DEVICE_STATE,
     ABORT_LOCAL_CONTROL,
     ABORT_VALUE_RANGE,
@@ -33,10 +33,10 @@ from bywire.protocol.canopen_node import (
     MAX_PRODUCER_HEARTBEAT_MS,
     MAX_REQUEST_DEADLINE_MS,
     MAX_TPDO_EVENT_TIMER_MS,
-    EcuRefusedError,
-    NmtCommand,
     load_ecu_od,
 )
+from bywire.protocol.canopen_link.host_master import EcuRefusedError
+from bywire.protocol.canopen_link.nmt import NmtCommand
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 
 

@@ -19,7 +19,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bywire.clock import SimClock
-from bywire.protocol.canopen_node import MAX_COUNTER_DELTA, EcuNode, HostMaster, NmtCommand
+from bywire.protocol.canopen_link.ecu_node import MAX_COUNTER_DELTA, EcuNode
+from bywire.protocol.canopen_link.host_master import HostMaster
+from bywire.protocol.canopen_link.nmt import NmtCommand
 from bywire.protocol.ecu_types import Fault, RequestFlags
 from bywire.protocol.host_link import EcuStatus, HostRequest
 from bywire.protocol.udp_bus import MalformedDatagram, UdpCanBus, decode_datagram, encode_datagram

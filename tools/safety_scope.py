@@ -4,10 +4,10 @@ One list for both tools that test the tests (`safety_coverage.py`, `mutation.py`
 added to the authority, or a spec test file added beside the others, is measured by both at once.
 
 The authority is DESIGN section 4's: the state machine, the pure core, the E2E counter logic and
-the receivers/watchdogs that feed it, and the transmit guard (opendbc's `tx_hook`). Two of its
-files also hold code that is not safety logic (the vehicle codec, the CANopen master); for those
-the `parts` name the classes and functions that are, and reports show the part as the file's
-safety scope beside the whole file.
+the receivers/watchdogs that feed it, and the transmit guard (opendbc's `tx_hook`). Some of its
+files also hold code that is not safety logic (the receiver's read-only views, NMT, the rest of the
+ECU's CANopen node); for those the `parts` name the classes and functions that are, and reports
+show the part as the file's safety scope beside the whole file.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ SAFETY_SOURCES: tuple[SafetySource, ...] = (
     SafetySource("bywire/ecu/tx_guard.py", optional=True),
     SafetySource("bywire/protocol/e2e.py"),
     SafetySource("bywire/protocol/vehicle_rx.py", parts=("VehicleRx",)),
+    SafetySource("bywire/protocol/canopen_link/nmt.py", parts=("HeartbeatConsumer",)),
     SafetySource(
-        "bywire/protocol/canopen_node.py",
-        parts=("HeartbeatConsumer", "EcuNode.request_fresh", "EcuNode._on_rpdo"),
+        "bywire/protocol/canopen_link/ecu_node.py", parts=("EcuNode.request_fresh", "EcuNode._on_rpdo")
     ),
 )
 

@@ -57,7 +57,8 @@ from bywire.ecu.core import ActuatorCommand, CoreState, core_step, initial_core_
 from bywire.ecu.executive import CycleStats
 from bywire.ecu.safety import EcuInputs
 from bywire.ecu.tx_guard import TxGuard
-from bywire.protocol.canopen_node import ABORT_DEVICE_STATE, EcuNode, RefusedWrite
+from bywire.protocol.canopen_link.dictionary import ABORT_DEVICE_STATE
+from bywire.protocol.canopen_link.ecu_node import EcuNode, RefusedWrite
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, Gear, RequestFlags
 from bywire.protocol.host_link import EcuStatus, next_counter
 from bywire.protocol.timebase import rx_time_s

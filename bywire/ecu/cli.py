@@ -176,7 +176,7 @@ def _service(url: str, timeout_s: float, what: str, calibration: Path | None) ->
     from bywire.clock import WallClock
     from bywire.ecu.calibration import CalibrationError, loads_calibration
     from bywire.protocol.bus_url import open_bus
-    from bywire.protocol.canopen_node import EcuRefusedError, HostMaster
+    from bywire.protocol.canopen_link.host_master import EcuRefusedError, HostMaster
 
     data = b""
     if calibration is not None:

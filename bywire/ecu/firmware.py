@@ -3,8 +3,9 @@
 No paper section (AnnieWAY's ECU was a dSPACE-style unit flashed by its vendor tool); this is our
 deployment unit for `bywire ecu flash`. An image is a zipapp holding:
 
-- the parts of bywire the ECU runs: `bywire/__init__.py`, `bywire/clock.py`, `bywire.protocol` and
-  `bywire.ecu` (all modules and their package data: `*.dbc`, `*.eds`, `calibrations/*.json`);
+- the parts of bywire the ECU runs: `bywire/__init__.py`, `bywire/clock.py`, `bywire.protocol` (its
+  top level and the ECU's end of the CANopen link, never the host's master) and `bywire.ecu` (all
+  modules), with their package data (`*.dbc`, `*.eds`, `calibrations/*.json`);
 - the pure-Python distributions they import at run time (`RUNTIME_DISTRIBUTIONS` and their
   requirements, found with importlib.metadata), with their `*.dist-info` metadata so that entry
   points (python-can's `can.interface` plugins, e.g. python-can-remote's `remote`) resolve from the
@@ -80,9 +81,11 @@ RUNTIME_DISTRIBUTIONS: tuple[str, ...] = ("python-can", "python-can-remote", "ca
 # Files of bywire itself, per package: glob patterns relative to the package directory.
 _BYWIRE_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("bywire", ("__init__.py", "clock.py")),
-    # The protocol's top level only: its subpackages are the host's (protocol/v2x: V2V messages,
-    # which the ECU never speaks, and whose asn1tools is not among the image's distributions).
+    # The protocol's top level, and of its subpackages only what the ECU's end of the CANopen link
+    # needs. The host's (canopen_link/host_master.py: the host's master; protocol/v2x: V2V messages,
+    # which the ECU never speaks, and whose asn1tools is not among the image's distributions) stay out.
     ("bywire.protocol", ("*.py", "*.dbc", "*.eds")),
+    ("bywire.protocol.canopen_link", ("__init__.py", "dictionary.py", "nmt.py", "pump.py", "ecu_node.py")),
     ("bywire.ecu", ("**/*.py", "calibrations/*.json")),
 )
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # the earliest date a zip entry can carry

@@ -19,7 +19,7 @@ The rules, each there because its absence was found exploitable:
   button only between usable vehicle reports; at boot all three count as held.
 - A longer stall is never judged safer than a shorter one: a gap between two ECU cycles longer than
   the firmware's bound is a stop fault by itself (LOOP_STALL, measured by the application).
-- Every watchdog time is bounded by the firmware (protocol.canopen_node MAX_*), and any exception
+- Every watchdog time is bounded by the firmware (protocol.canopen_link.dictionary MAX_*), and any exception
   inside a cycle (INTERNAL_ERROR) or a command the transmit guard had to replace (TX_GUARD,
   ecu.tx_guard) is a stop fault of its own.
 

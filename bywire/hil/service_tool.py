@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import can
 
-from bywire.protocol.canopen_node import COMMAND_INDEX, ECU_NODE_ID, UNLATCH_SUB
+from bywire.protocol.canopen_link.dictionary import COMMAND_INDEX, ECU_NODE_ID, UNLATCH_SUB
 from bywire.protocol.timebase import data_frame
 
 SDO_RX_BASE = 0x600  # client -> server, + node id (CiA 301 default SDO COB-IDs)

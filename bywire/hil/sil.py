@@ -38,7 +38,7 @@ from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, TraceWriter
 from bywire.hil.world.links import BytePipe
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.agent import HostAgent
-from bywire.protocol.canopen_node import HostMaster
+from bywire.protocol.canopen_link.host_master import HostMaster
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001

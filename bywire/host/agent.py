@@ -30,7 +30,7 @@ from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.runtime import Runtime
 from bywire.host.runtime.store import ObjectStore
-from bywire.protocol.canopen_node import HostMaster
+from bywire.protocol.canopen_link.host_master import HostMaster
 
 
 class HostAgent:

@@ -25,7 +25,7 @@ from bywire.hil.trace import HOST_COLUMNS, TraceWriter
 from bywire.host.agent import HostAgent
 from bywire.host.config import load_host_config
 from bywire.protocol.bus_url import open_bus
-from bywire.protocol.canopen_node import HostMaster
+from bywire.protocol.canopen_link.host_master import HostMaster
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

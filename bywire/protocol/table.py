@@ -19,32 +19,29 @@ import cantools.database
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
 from canopen.objectdictionary import datatypes as dt
 
-from bywire.protocol.canopen_node import (
+from bywire.protocol.canopen_link.dictionary import (
     CALIBRATION_INDEX,
     COMMAND_INDEX,
     CONSUMER_HEARTBEAT_INDEX,
     ECU_NODE_ID,
     EMCY_COB_INDEX,
-    HEARTBEAT_COB_BASE,
     MAX_CALIBRATION_BYTES,
-    MAX_COUNTER_DELTA,
     MAX_HOST_HEARTBEAT_TIMEOUT_MS,
     MAX_PRODUCER_HEARTBEAT_MS,
     MAX_REQUEST_DEADLINE_MS,
     MAX_TPDO_EVENT_TIMER_MS,
-    NMT_COB_ID,
     PRODUCER_HEARTBEAT_INDEX,
     REFUSAL_INDEX,
     RPDO_COMM_BASE,
     SDO_SERVER_INDEX,
     TPDO_COMM_BASE,
-    NmtCommand,
-    NmtState,
     PdoLayout,
     load_ecu_od,
     od_default,
     read_pdo_layouts,
 )
+from bywire.protocol.canopen_link.ecu_node import MAX_COUNTER_DELTA
+from bywire.protocol.canopen_link.nmt import HEARTBEAT_COB_BASE, NMT_COB_ID, NmtCommand, NmtState
 from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, RequestFlags
 from bywire.protocol.host_link import (
     EMCY_CODE_BY_FAULT,

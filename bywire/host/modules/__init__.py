@@ -28,7 +28,7 @@ from bywire.host.modules import messages as m
 from bywire.host.modules import urban_messages as u
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
-from bywire.protocol.canopen_node import HostMaster
+from bywire.protocol.canopen_link.host_master import HostMaster
 
 
 @dataclass

@@ -40,7 +40,8 @@ from bywire.host.modules.messages import (
 )
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import STOP_REQUEST
-from bywire.protocol.canopen_node import HostMaster, NmtState
+from bywire.protocol.canopen_link.host_master import HostMaster
+from bywire.protocol.canopen_link.nmt import NmtState
 from bywire.protocol.ecu_types import EcuState, RequestFlags
 from bywire.protocol.host_link import HostRequest
 
