@@ -12,18 +12,9 @@ from hypothesis import strategies as st
 from pyproj import Geod
 from test_roadnet_helpers import network
 
+from bywire.host.roadnet.curves import SHARPNESS_MAX_1PM2, connector, drivable_connector, smooth_curve
 from bywire.host.roadnet.geo import PlanarFrame, TransverseMercator, frame_for
-from bywire.host.roadnet.path import (
-    DEFAULT_STEP_M,
-    SHARPNESS_MAX_1PM2,
-    Path,
-    PathPoint,
-    concat,
-    connector,
-    drivable_connector,
-    smooth_curve,
-    wrap_angle,
-)
+from bywire.host.roadnet.path import DEFAULT_STEP_M, Path, PathPoint, concat, wrap_angle
 
 # ---------------------------------------------------------------------------------------------- geo
 

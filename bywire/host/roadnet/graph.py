@@ -51,20 +51,12 @@ from enum import StrEnum
 import networkx as nx
 import numpy as np
 
+from .curves import connector, drivable_connector, smooth_curve
 from .errors import ParseWarning
 from .geo import CoordinateFrame, frame_for
 from .ids import LaneId, WaypointId
 from .mdf import Mission, ResolvedMission
-from .path import (
-    DEFAULT_STEP_M,
-    Path,
-    PathPoint,
-    concat,
-    connector,
-    drivable_connector,
-    smooth_curve,
-    wrap_angle,
-)
+from .path import DEFAULT_STEP_M, Path, PathPoint, concat, wrap_angle
 from .rndf import Boundary, Lane, RoadNetwork
 
 # 12 ft, the common lane width of the DARPA files, where a lane gives none.
