@@ -9,6 +9,7 @@ processes cost on top of the operating system's own wake-up jitter.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import json
@@ -74,3 +75,13 @@ def bench_ecu(seconds: float, json_path: Path | None, report_dir: Path | None) -
     if json_path is not None:
         write_json(json_path, doc)
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seconds", type=float, default=20.0, help="how long to measure (default 20)")
+    p.add_argument("--json", type=Path, help="write the loop statistics as JSON")
+    p.add_argument("--report", type=Path, help="directory for the run's logs and traces")
+
+
+def main(args: argparse.Namespace) -> int:
+    return bench_ecu(args.seconds, args.json, args.report)
