@@ -10,7 +10,8 @@ firmware and the protocol, `bywire host run` only the host (DESIGN.md section 2:
 alone), and `--help` is instant. Three rows are this module's own, because what they join may only
 be joined here, at the top: `ecu` hands its raw arguments to `bywire.ecu.cli` (also the entry point of
 a flashed firmware image); `host run --scenario` is the simulator's host process (`hil.host_process`)
-on the car's entry point; `log` replays a simulator's recording with the simulator's inputs.
+on the car's entry point; `log` replays a simulator's recording with the simulator's inputs. The
+`bench` rows run `benchmarks/NAME.py` of the source checkout, which an installed wheel does not hold.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -64,38 +66,34 @@ COMMANDS: tuple[Command, ...] = (
     Command("hil list", "list the shipped scenarios", "bywire.hil.hil_cli", "list"),
     Command("hil plant", "(internal) the plant process of a HIL run", "bywire.hil.plant_main"),
     Command("bench", "benchmarks"),
-    Command(
-        "bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "bywire.hil.bench"
-    ),
+    Command("bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "benchmarks.ecu"),
     Command(
         "bench roadnet",
         "RNDF/MDF parse, graph and mission route on NQE and VAIL (issue 5)",
-        "bywire.host.roadnet.bench",
+        "benchmarks.roadnet",
     ),
     Command(
         "bench runtime",
         "object store and cross-process transport: latency and throughput, with baselines",
-        "bywire.host.runtime.bench",
+        "benchmarks.runtime",
     ),
     Command(
         "bench platoon",
         "the follow-control QP and the 10-vehicle platoon step, vs. cvxpy (issue 4)",
-        "bywire.host.platoon.bench",
+        "benchmarks.platoon",
     ),
     Command(
-        "bench v2x",
-        "V2X codec and hardened receiver per message, vs. struct (issue 4)",
-        "bywire.protocol.v2x.bench",
+        "bench v2x", "V2X codec and hardened receiver per message, vs. struct (issue 4)", "benchmarks.v2x"
     ),
     Command(
         "bench world",
         "world model: lane-map match, vehicle prediction, pose filter (issue 4)",
-        "bywire.host.world.bench",
+        "benchmarks.world",
     ),
     Command(
         "bench urban",
         "moving-traffic check, intersection precedence, lateral controller, HSM step (issue 5)",
-        "bywire.host.behaviour.bench",
+        "benchmarks.urban",
     ),
     Command("log", "recordings (MCAP): info, plot, replay", "bywire.cli", "log"),
     Command("platoon", "platoon tools (issue 4)", metavar="COMMAND"),
@@ -147,8 +145,36 @@ COMMANDS: tuple[Command, ...] = (
 )
 
 
+class CommandUnavailable(Exception):
+    """A command whose implementation is not where this `bywire` runs from (said in one line)."""
+
+
 def import_command_module(name: str) -> ModuleType:
+    """A command's module; `benchmarks.*` from the source checkout's benchmarks/ folder, the one
+    beside the `bywire` package (the repository root goes on sys.path, so that the processes a
+    benchmark spawns import it by name too)."""
+    if name.split(".")[0] == "benchmarks":
+        import bywire
+
+        folder = Path(bywire.__file__).resolve().parent.parent / "benchmarks"
+        if not (folder / "__init__.py").is_file():
+            raise CommandUnavailable(
+                f"bywire bench needs the benchmarks/ folder of a source checkout, and there is none beside "
+                f"this installation ({folder.parent}): run it from a clone of the repository"
+            )
+        if str(folder.parent) not in sys.path:
+            sys.path.insert(0, str(folder.parent))
+        found = importlib.import_module("benchmarks").__file__
+        if found is None or Path(found).resolve().parent != folder:
+            raise CommandUnavailable(
+                f"bywire bench: `benchmarks` is imported from {found}, not from {folder}"
+            )
     return importlib.import_module(name)
+
+
+def benchmark(name: str) -> ModuleType:
+    """The module of `bywire bench NAME` (benchmarks/NAME.py of the source checkout)."""
+    return import_command_module(f"benchmarks.{name}")
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -183,7 +209,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     raw = next((row for row in COMMANDS if row.raw and argv[:1] == [row.words]), None)
     if raw is not None:
         return raw.main(argv[1:])
-    args = build_parser(argv).parse_args(argv)
+    try:
+        args = build_parser(argv).parse_args(argv)
+    except CommandUnavailable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         return _row(args).main(args)
     except KeyboardInterrupt:

@@ -6,7 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from bywire.host.behaviour import bench
+from bywire.cli import benchmark
+
+bench = benchmark("urban")
 
 
 def test_bench_runs_and_writes_json(tmp_path: Path, capsys) -> None:

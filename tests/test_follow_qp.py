@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bywire.host.platoon import bench
+from bywire.cli import benchmark
 from bywire.host.platoon.follow_qp import (
     AccelRef,
     FollowParams,
@@ -19,6 +19,8 @@ from bywire.host.platoon.follow_qp import (
     follow_oracle,
 )
 from bywire.host.platoon.strategy import PlatoonStrategy
+
+bench = benchmark("platoon")
 
 # Agreement of the fast path with the oracle. The command is a second difference, 2 x^1 / dt^2, so position
 # error is amplified 50x (dt 0.2 s) / 200x (dt 0.1 s); the fast path solves to 1e-10 (gap, feasibility),

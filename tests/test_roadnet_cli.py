@@ -11,7 +11,10 @@ from pathlib import Path
 import pytest
 from test_roadnet_helpers import SYNTHETIC_RNDF, need_data, synthetic_mission_text
 
-from bywire.host.roadnet import bench, roadnet_cli
+from bywire.cli import benchmark
+from bywire.host.roadnet import roadnet_cli
+
+bench = benchmark("roadnet")
 
 
 def check_args(*argv: str) -> argparse.Namespace:

@@ -23,7 +23,8 @@ import pytest
 import zmq
 from runtime_types import Cloud, Ping, echo_child, endpoint_child, ping_child
 
-from bywire.host.runtime import bench, transport
+from bywire.cli import benchmark
+from bywire.host.runtime import transport
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.transport import (
     SEND_QUEUE,
@@ -32,6 +33,8 @@ from bywire.host.runtime.transport import (
     TopicSubscriber,
     new_endpoint,
 )
+
+bench = benchmark("runtime")
 
 CTX = mp.get_context("spawn")
 CHILD_S = 30.0  # children end by themselves after this, should a test fail to kill them

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.protocol.v2x import bench, v2x_cli
+from bywire.cli import benchmark
+from bywire.protocol.v2x import v2x_cli
 from bywire.protocol.v2x.codec import VehicleState, encode
 from bywire.protocol.v2x.meter import (
     PROBE_MIN_BYTES,
@@ -32,6 +33,8 @@ from bywire.protocol.v2x.meter import (
     send_stream,
 )
 from bywire.protocol.v2x.transport import V2xTransport
+
+bench = benchmark("v2x")
 
 
 def free_url() -> str:

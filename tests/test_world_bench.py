@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from bywire.host.world import bench
+from bywire.cli import benchmark
+
+bench = benchmark("world")
 
 
 def test_bench_contract(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

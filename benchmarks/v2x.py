@@ -1,4 +1,5 @@
-"""`bywire bench v2x`: the state-message codec and the hardened receiver, timed per message.
+"""`bywire bench v2x`: the state-message codec and the hardened receiver, timed per message (seed 003
+section III: V2V communication and receiver hardening).
 
 Rows, measured interleaved in one run so that machine load hits them alike (median / p99 / max, us):
 
@@ -29,9 +30,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from bywire.bench_cli import add_timed_arguments, run_timed
-
-from .codec import (
+from benchmarks.timed import add_timed_arguments, run_timed
+from bywire.protocol.v2x.codec import (
     DriveDirection,
     VehicleState,
     compiled_spec,
@@ -40,10 +40,10 @@ from .codec import (
     timestamp_its_to_unix,
     unix_to_timestamp_its,
 )
-from .etsi_cam import EtsiSchemaMissing, etsi_asn1_dir, from_etsi_cam
-from .fuzz import V2xFuzzer
-from .meter import percentile
-from .receiver import GeoPoint, ReceiverParams, V2vReceiver
+from bywire.protocol.v2x.etsi_cam import EtsiSchemaMissing, etsi_asn1_dir, from_etsi_cam
+from bywire.protocol.v2x.fuzz import V2xFuzzer
+from bywire.protocol.v2x.meter import percentile
+from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
 
 DEFAULT_SECONDS = 6.0
 T0_S = 1_700_000_000.0

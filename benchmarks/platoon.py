@@ -24,10 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from bywire.bench_cli import add_timed_arguments, run_timed
-
-from .follow_qp import FollowParams, FollowQP, LeaderPrediction, follow_oracle
-from .strategy import PlatoonStrategy
+from benchmarks.timed import add_timed_arguments, run_timed
+from bywire.host.platoon.follow_qp import FollowParams, FollowQP, LeaderPrediction, follow_oracle
+from bywire.host.platoon.strategy import PlatoonStrategy
 
 DEFAULT_SECONDS = 10.0
 LEADERS = 10

@@ -1,5 +1,8 @@
 """`bywire bench urban`: the moving-traffic check, precedence, the lateral controller and the HSM step, timed.
 
+Seed 000 sections 8 (the hierarchical state machine), 9 (the moving-traffic check, eqs 8-17) and 11
+(orbital lateral control).
+
 Rows, measured interleaved in one run so that machine load hits all alike; each call is timed alone
 with `time.perf_counter_ns` and the distribution reported as p50 / p99 / max in microseconds:
 
@@ -30,19 +33,18 @@ from typing import Any
 
 import numpy as np
 
-from bywire.bench_cli import add_timed_arguments, run_timed
+from benchmarks.timed import add_timed_arguments, run_timed
+from bywire.host.behaviour.behaviour import Behaviour
+from bywire.host.behaviour.mtc import ConflictVehicle, moving_traffic_check
+from bywire.host.behaviour.precedence import IntersectionPrecedence, StopLine, WaitingVehicle
+from bywire.host.behaviour.rules import MTC_SITUATIONS
+from bywire.host.behaviour.situation import EgoState, LaneRef, Situation, TrackedObject
 from bywire.host.lateral import LateralParams, PathSamples, VehiclePose, lateral_step
 from bywire.host.longitudinal import LongitudinalParams, LongitudinalState, longitudinal_step
 from bywire.host.roadnet.graph import build_graph
 from bywire.host.roadnet.mdf import parse_mdf, resolve_mission
 from bywire.host.roadnet.rndf import parse_rndf
 from bywire.host.roadnet.route import MissionPlanner
-
-from .behaviour import Behaviour
-from .mtc import ConflictVehicle, moving_traffic_check
-from .precedence import IntersectionPrecedence, StopLine, WaitingVehicle
-from .rules import MTC_SITUATIONS
-from .situation import EgoState, LaneRef, Situation, TrackedObject
 
 # Two crossing two-lane roads in local metres, stop signs on all four approaches (lane ends 8 m from
 # the centre, lanes 2 m either side of each centre line), 150 m arms.

@@ -1,5 +1,7 @@
 """`bywire bench roadnet`: read, parse, build the graph and plan full missions on the largest shared networks.
 
+Seed 000 section 8: RNDF/MDF mission planning.
+
 Networks: the DARPA NQE RNDF with the MDFs of test areas A, B1, B2 and C, and Stanford's VAIL RNDF (the
 largest file, v1.1 extension) with its MDF.  For each, timed `--repeats` times in one run (so machine load
 hits all rows alike), median / p99 / max in milliseconds:
@@ -34,9 +36,9 @@ from typing import TYPE_CHECKING, Any
 
 # The subsystem loads when the benchmark runs, not when `bywire` builds its parser (add_arguments).
 if TYPE_CHECKING:
-    from .graph import RoadGraph
-    from .mdf import ResolvedMission
-    from .route import MissionPlanner
+    from bywire.host.roadnet.graph import RoadGraph
+    from bywire.host.roadnet.mdf import ResolvedMission
+    from bywire.host.roadnet.route import MissionPlanner
 
 DEFAULT_REPEATS = 5
 ROWS = ("read", "parse", "graph", "route", "replan", "dijkstra", "total")
@@ -97,10 +99,10 @@ def _plan_all(planners: list[MissionPlanner]) -> list[Any]:
 
 
 def bench_network(root: Path, rndf: str, mdfs: tuple[str, ...], repeats: int) -> dict[str, Any]:
-    from .graph import build_graph
-    from .mdf import load_mdf, resolve_mission
-    from .rndf import load_rndf
-    from .route import MissionPlanner
+    from bywire.host.roadnet.graph import build_graph
+    from bywire.host.roadnet.mdf import load_mdf, resolve_mission
+    from bywire.host.roadnet.rndf import load_rndf
+    from bywire.host.roadnet.route import MissionPlanner
 
     rows: dict[str, list[float]] = {k: [] for k in ROWS}
     length = 0.0

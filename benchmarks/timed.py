@@ -1,6 +1,6 @@
 """The command every timed `bywire bench NAME` shares: `--seconds` and `--json`, run, print the table,
 write the document. Each benchmark module keeps only what is its own: `run(seconds) -> doc` and its
-table."""
+table (DESIGN.md section 5: distributions and ratios from one run, never asserted)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
 """`bywire bench world`: the world model's per-cycle operations, timed, each beside a baseline in one run.
 
+Seed 003 section IV: map matching on a kd-tree and vehicle prediction.
+
 Rows (median / p99 / max over many calls; all in one process so that machine load hits both sides alike):
 
 - lane-map match of one position on a recorded two-lane map of `MAP_KM` km (0.5 m vertices): the
@@ -28,13 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from bywire.bench_cli import add_timed_arguments, run_timed
+from benchmarks.timed import add_timed_arguments, run_timed
 from bywire.host.geo import LocalFrame
-
-from .lanemap import LaneMap, record_lane
-from .nmea import FixQuality
-from .pose import PoseFilter
-from .vehicles import VehicleManager, VehicleMessage
+from bywire.host.world.lanemap import LaneMap, record_lane
+from bywire.host.world.nmea import FixQuality
+from bywire.host.world.pose import PoseFilter
+from bywire.host.world.vehicles import VehicleManager, VehicleMessage
 
 DEFAULT_SECONDS = 6.0
 MAP_KM = 10.0
