@@ -230,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def add_host_run_arguments(p: argparse.ArgumentParser) -> None:
-    from bywire.host import main as host_main  # light: argparse-only at import time
+    from bywire.host import main as host_main
 
     host_main.add_arguments(p)
 
