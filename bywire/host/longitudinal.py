@@ -74,6 +74,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from bywire.host.limits import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+
 __all__ = [
     "ActiveController",
     "LeadObservation",
@@ -107,8 +109,8 @@ class LongitudinalParams:
     stop_aim_beyond_m: float = 0.5  # -d_delta of eq 30: aim point of a_s beyond the stop line (ours)
     stop_hold_zone_m: float = 0.2  # within this of the line the PD only brakes, never creeps (ours)
     position_omega_per_s: float = 1.5  # PD double pole w: k_p = w², k_d = 2 w (ours)
-    accel_min_mps2: float = -4.5  # a_min, = the ECU's default clamp (DESIGN Sec. 4)
-    accel_max_mps2: float = 2.0  # a_max, = the ECU's default clamp
+    accel_min_mps2: float = ACCEL_MIN_MPS2  # a_min (host.limits)
+    accel_max_mps2: float = ACCEL_MAX_MPS2  # a_max
 
     def __post_init__(self) -> None:
         positive = (

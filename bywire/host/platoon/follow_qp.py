@@ -90,6 +90,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
+from bywire.host.limits import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+
 FloatArray = npt.NDArray[np.float64]
 HeadwayRef = Literal["host", "leader"]
 AccelRef = Literal["zero", "leader"]
@@ -111,8 +113,8 @@ class FollowParams:
     # w_acc = 4 gives, for the unconstrained infinite-horizon analogue (LQR on the double integrator),
     # gap/speed gains of 0.5 1/s^2 and 1.1 1/s: damping ~0.8, no overshoot worth mentioning.
     w_acc: float = 4.0
-    accel_min_mps2: float = -4.5
-    accel_max_mps2: float = 2.0
+    accel_min_mps2: float = ACCEL_MIN_MPS2  # host.limits
+    accel_max_mps2: float = ACCEL_MAX_MPS2
     speed_min_mps: float = 0.0
     speed_max_mps: float = 100.0 * KMH_TO_MPS
     # Hard no-collision bound to the predicted leader; None: the cost alone keeps the distance (paper).

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from bywire.host.limits import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -43,7 +45,7 @@ class LeadCompensationParams:
     jerk_tau_s: float = 0.2
     """Time constant of the jerk low-pass, s."""
     max_jerk_mps3: float = 10.0
-    accel_bounds_mps2: tuple[float, float] = (-4.5, 2.0)  # the GCDC's limits (seed 003 V-A)
+    accel_bounds_mps2: tuple[float, float] = (ACCEL_MIN_MPS2, ACCEL_MAX_MPS2)  # host.limits
     max_update_gap_s: float = 0.5
     """A vehicle not reported for longer restarts its estimate (a gap is not a jerk)."""
 
