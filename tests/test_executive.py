@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from bywire.clock import SimClock, WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
-from bywire.ecu.realtime import apply_realtime
+from bywire.realtime import apply_realtime
 
 PERIOD_S = 0.001
 
@@ -383,7 +383,7 @@ def test_realtime_rejects_impossible_arguments() -> None:
 def test_real_apply_in_a_child_process_reports_every_step() -> None:
     # In a child: SCHED_FIFO, mlockall and a disabled GC must not leak into the test process.
     code = (
-        "from bywire.ecu.realtime import apply_realtime\n"
+        "from bywire.realtime import apply_realtime\n"
         "import gc\n"
         "r = apply_realtime(priority=1, cpu=0)\n"
         "print(r.summary())\n"

@@ -13,11 +13,12 @@ import pynmea2
 import pytest
 import serial
 
+from bywire.hil.world.pty_link import PtyLink
 from bywire.host.geo import LocalFrame, wrap_angle
 from bywire.host.world.nmea import FixQuality, NmeaStream
 from bywire.host.world.nmea_emulator import EmulatorConfig, Outage, ReceiverEmulator, TruthState
 from bywire.host.world.pose import Pose, PoseFilter, PoseServer, PoseServerConfig
-from bywire.host.world.serial_link import PtyLink, SerialSource
+from bywire.host.world.serial_link import SerialSource
 
 ORIGIN = (51.4708, 5.6230)
 ODO_DT_S = 0.01  # the ECU's wheel speed and yaw rate at 100 Hz

@@ -459,9 +459,9 @@ def main(argv: list[str] | None = None) -> int:
     from bywire.clock import WallClock
     from bywire.ecu.executive import CyclicExecutive
     from bywire.ecu.health import FIRST_REPORT_CYCLES, SAMPLE_CYCLES, BootHealth
-    from bywire.ecu.realtime import apply_realtime
     from bywire.ecu.store import os_error_text, report_boot
     from bywire.protocol.bus_url import open_bus
+    from bywire.realtime import apply_realtime
 
     parser = argparse.ArgumentParser(prog="bywire ecu run", description="run the ECU firmware at 1 kHz")
     add_run_arguments(parser)

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from bywire.hil.scenario import MODULE_FAULTS, STATE_AT, Check, Scenario, step_value
+from bywire.hil.scenario import MODULE_FAULTS, STATE_AT, Check, Scenario
+from bywire.profiles import step_value
 from bywire.protocol.ecu_types import EcuState, Fault
 
 STANDSTILL_MPS = 0.05  # below this the car counts as stopped (wheel-speed sensor resolution ~0.03 m/s)

@@ -35,10 +35,12 @@ from typing import Any
 
 import can
 
-from bywire.hil.scenario import FaultEvent, Scenario, ramp_value
-from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
+from bywire.hil.scenario import FaultEvent, Scenario
+from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.sim import WorldSim, lead_world
 from bywire.hil.world.urban import UrbanWorldSim
+from bywire.host.trace import TraceWriter
+from bywire.profiles import ramp_value
 from bywire.protocol.ecu_types import EcuState, EstopMode, Gear
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (

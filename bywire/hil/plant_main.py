@@ -21,15 +21,16 @@ from typing import Any
 
 from bywire.clock import WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
-from bywire.ecu.realtime import apply_realtime
 from bywire.hil.plant import Plant, PlantLinks
-from bywire.hil.process_util import StopFlag, wait_for_t0
 from bywire.hil.scenario import load_scenario
 from bywire.hil.sil import open_scenario_vehicle
-from bywire.hil.trace import PLANT_COLUMNS, TraceWriter
+from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import FdWriter
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
+from bywire.host.trace import TraceWriter
+from bywire.process_util import StopFlag, wait_for_t0
 from bywire.protocol.bus_url import open_bus
+from bywire.realtime import apply_realtime
 
 PLANT_PERIOD_S = 0.001
 

@@ -38,10 +38,10 @@ from typing import Any
 import numpy as np
 
 from bywire.hil.scenario import Scenario
-from bywire.hil.trace import CONTROLLERS
 from bywire.hil.world.spec import WorldSpec
 from bywire.hil.world.traffic import EGO
 from bywire.host.platoon.string_stability import Platoon, Vehicle, load_platoon_csv, string_stability
+from bywire.host.trace import CONTROLLERS
 
 SETTLE_S = 5.0
 MIN_WINDOW_S = 20.0

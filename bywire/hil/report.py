@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from bywire.hil.scenario import Scenario
-from bywire.hil.trace import CONTROLLERS
+from bywire.host.trace import CONTROLLERS
 from bywire.protocol.ecu_types import EcuState
 
 

@@ -39,8 +39,9 @@ from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_c
 from bywire.hil.scenario import Scenario
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil import RunResult
-from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, read_trace
+from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
+from bywire.host.trace import HOST_COLUMNS, read_trace
 from bywire.protocol.bus_url import open_bus, wait_for_port
 
 READY_TIMEOUT_S = 90.0  # four Python processes importing numpy/fmpy/canopen at once on 2 cores
@@ -152,7 +153,7 @@ def run_hil(
     host_world_args: list[str] = []
     plant_fds: tuple[int, ...] = ()
     if scenario.world is not None:
-        from bywire.host.world.serial_link import PtyLink
+        from bywire.hil.world.pty_link import PtyLink
 
         v2x_url = f"v2x://127.255.255.255:{free_udp_port()}"
         plant_world_args = ["--v2x", v2x_url, "--traffic-trace", str(run_dir / "traffic.csv")]

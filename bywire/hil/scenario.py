@@ -8,7 +8,6 @@ safety scenario that silently does nothing is worse than no scenario.
 
 from __future__ import annotations
 
-import itertools
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ import yaml
 
 from bywire.hil.world.spec import WorldSpec, parse_world
 from bywire.hil.world.urban_spec import UrbanSpec, parse_urban
+from bywire.profiles import ramp_value, step_value
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.schema import Reader, SchemaError
 
@@ -65,28 +65,6 @@ class ScenarioError(SchemaError):
 
 class _Reader(Reader):
     error_type = ScenarioError
-
-
-def step_value(profile: tuple[tuple[float, float], ...], t_s: float, default: float = 0.0) -> float:
-    """Zero-order hold of a piecewise profile: the value of the last point at or before t_s."""
-    value = default
-    for t_point, v_point in profile:
-        if t_point > t_s:
-            break
-        value = v_point
-    return value
-
-
-def ramp_value(profile: tuple[tuple[float, float], ...], t_s: float, default: float = 0.0) -> float:
-    """Linear interpolation of a profile, held constant outside its range."""
-    if not profile:
-        return default
-    if t_s <= profile[0][0]:
-        return profile[0][1]
-    for (t0, v0), (t1, v1) in itertools.pairwise(profile):
-        if t_s <= t1:
-            return v0 + (v1 - v0) * (t_s - t0) / (t1 - t0)
-    return profile[-1][1]
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,10 @@
 """Byte links between the plant's world and the host that are not CAN: the GPS receiver's serial line.
 
-In HIL the runner creates a pseudo-terminal pair (`host.world.serial_link.PtyLink`): the plant writes the
+In HIL the runner creates a pseudo-terminal pair (`hil.world.pty_link.PtyLink`): the plant writes the
 receiver's NMEA bytes to the master (`FdWriter`, non-blocking: a full buffer drops bytes and counts them,
 like a UART overrun, instead of stalling the plant), the host opens the slave with pyserial like a real
-``/dev/ttyUSB0`` (`SerialReader`). In SIL one process holds both ends of a `BytePipe`, deterministic.
+``/dev/ttyUSB0`` (`host.world.serial_link.SerialReader`). In SIL one process holds both ends of a
+`BytePipe`, deterministic.
 V2V datagrams go through `protocol.v2x.transport` (`v2x://` UDP broadcast on loopback, or `mem://`).
 """
 
@@ -73,28 +74,6 @@ class FdWriter:
         os.close(self.fd)
 
 
-class SerialReader:
-    """The host's end of the GPS line in HIL: a serial port (the pty slave, or a real receiver's port)."""
-
-    def __init__(self, port: str, clock: Callable[[], float], baudrate: int = 115200) -> None:
-        from bywire.host.world.serial_link import SerialSource
-
-        self.source = SerialSource(port, baudrate)
-        self.clock = clock
-
-    def read(self) -> bytes:
-        out: list[bytes] = []
-
-        def sink(data: bytes, _t: float) -> None:
-            out.append(data)
-
-        self.source.poll(sink, self.clock)
-        return b"".join(out)
-
-    def close(self) -> None:
-        self.source.close()
-
-
 ByteSink = Callable[[bytes], int]
 
-__all__ = ["BytePipe", "ByteSink", "FdWriter", "SerialReader"]
+__all__ = ["BytePipe", "ByteSink", "FdWriter"]

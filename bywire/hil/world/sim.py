@@ -15,7 +15,6 @@ import datetime
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from bywire.hil.trace import TraceWriter
 from bywire.hil.world.spec import (
     DriverSpec,
     EgoSpec,
@@ -28,6 +27,7 @@ from bywire.hil.world.spec import (
 )
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS, World
 from bywire.hil.world.v2v import V2vBroadcaster
+from bywire.host.trace import TraceWriter
 from bywire.host.world.nmea_emulator import EmulatorConfig, Outage, ReceiverEmulator, TruthState
 
 LEGACY_RADAR_RANGE_M = 120.0  # the spine's radar (hil.plant before issue 4)

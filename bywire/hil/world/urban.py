@@ -36,12 +36,12 @@ from typing import Any
 import numpy as np
 
 from bywire.hil.world.urban_spec import UrbanSpec, UrbanVehicleSpec
-from bywire.host.roadnet.graph import EdgeKind, RoadGraph, build_graph
+from bywire.host.roadnet import network as roadnet_network
+from bywire.host.roadnet.graph import EdgeKind, RoadGraph
 from bywire.host.roadnet.ids import WaypointId
 from bywire.host.roadnet.lane_index import LaneIndex
-from bywire.host.roadnet.mdf import ResolvedMission, load_mdf, resolve_mission
+from bywire.host.roadnet.mdf import ResolvedMission
 from bywire.host.roadnet.path import Path, concat
-from bywire.host.roadnet.rndf import load_rndf
 from bywire.protocol.objects import EgoPoseRecord, ObjectList, ObjectRecord
 
 FMU_CG_TO_REAR_AXLE_M = 1.42  # vehicle_models/passat: lr
@@ -70,16 +70,13 @@ EXACT_SEPARATION_M = 12.0  # box-to-box distances are computed exactly below thi
 
 
 def load_network(rndf: str, mdf: str) -> tuple[RoadGraph, ResolvedMission]:
-    """The graph (splined lanes, MDF speed limits) and the resolved mission of an RNDF/MDF pair
-    (`host.roadnet`'s file:line errors; FileNotFoundError naming a missing file and the shared data root)."""
+    """The host's RNDF/MDF loader, with the shared data root named when a file is missing."""
     from bywire.hil.world.urban_spec import _missing
 
     for f in (rndf, mdf):
         if not FilePath(f).is_file():
             raise FileNotFoundError(_missing(FilePath(f)))
-    net = load_rndf(rndf)
-    mission = resolve_mission(net, load_mdf(mdf))
-    return build_graph(net, mission), mission
+    return roadnet_network.load_network(rndf, mdf)
 
 
 def route_path(graph: RoadGraph, waypoints: tuple[str, ...], where: str) -> tuple[Path, list[float]]:

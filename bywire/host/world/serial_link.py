@@ -1,22 +1,11 @@
-"""Thin serial adapters of the pose server: the receiver's port (pyserial) and, for HIL, a pseudo-terminal
-pair standing in for the cable so that the real serial path runs end to end.
+"""Thin serial adapters of the pose server: the GPS/INS receiver's port (pyserial), read without blocking.
 
 - `SerialSource`: opens a port (a device path or any pyserial URL) non-blocking and hands what has
   arrived to a callback with the receive time from an injected clock. Nothing here parses.
-- `PtyLink`: ``os.openpty()``; the emulator writes to the master fd, the pose server opens
-  `PtyLink.slave_path` with pyserial like a real ``/dev/ttyUSB0``. Both ends are set raw (no echo, no
-  CR/LF translation: NMEA's CR LF must arrive as sent). The master is non-blocking: when nobody reads the
-  slave, the kernel's buffer fills and further bytes are dropped and counted (`overrun_bytes`), like a
-  UART overrun, instead of stalling the plant.
 """
 
 from __future__ import annotations
 
-import contextlib
-import errno
-import os
-import termios
-import tty
 from collections.abc import Callable
 from types import TracebackType
 
@@ -63,43 +52,21 @@ class SerialSource:
         self.close()
 
 
-class PtyLink:
-    """A pseudo-terminal pair: write to the master, open `slave_path` with pyserial."""
+class SerialReader:
+    """The host's end of the GPS line: a receiver's serial port (in HIL the pty slave), read as bytes."""
 
-    def __init__(self) -> None:
-        self.master_fd, self._slave_fd = os.openpty()
-        for fd in (self.master_fd, self._slave_fd):
-            tty.setraw(fd, termios.TCSANOW)
-        os.set_blocking(self.master_fd, False)
-        self.slave_path = os.ttyname(self._slave_fd)
-        self.bytes_written = 0
-        self.overrun_bytes = 0
+    def __init__(self, port: str, clock: Callable[[], float], baudrate: int = 115200) -> None:
+        self.source = SerialSource(port, baudrate)
+        self.clock = clock
 
-    def write(self, data: bytes) -> int:
-        """Bytes accepted by the line; the rest is dropped (counted) if the reader is not keeping up."""
-        if not data:
-            return 0
-        try:
-            n = os.write(self.master_fd, data)
-        except OSError as e:
-            if e.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
-                n = 0
-            else:
-                raise
-        self.bytes_written += n
-        self.overrun_bytes += len(data) - n
-        return n
+    def read(self) -> bytes:
+        out: list[bytes] = []
+
+        def sink(data: bytes, _t: float) -> None:
+            out.append(data)
+
+        self.source.poll(sink, self.clock)
+        return b"".join(out)
 
     def close(self) -> None:
-        # The slave fd is held open until here so that the pty does not hang up between pyserial reopenings.
-        for fd in (self.master_fd, self._slave_fd):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-    def __enter__(self) -> PtyLink:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
+        self.source.close()

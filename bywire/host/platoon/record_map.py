@@ -5,7 +5,8 @@ NMEA log (a file of sentences as the serial line gave them, e.g. `cat /dev/ttyUS
 decoded by the pose server's strict NMEA decoder; the GGA fixes (RTK fixed or float by default) become
 the lane through `host.world.lanemap.record_lane` (0.5 m segments, light smoothing), the local plane's
 origin at the first fix (or `--origin LAT,LON`, which a scenario's road origin must match); further lanes
-at `--lane-width` to the left (`--lanes N`). The JSON is what a `world_model` module loads (`map_file`).
+at `--lane-width` to the left (`--lanes N`). The JSON is the mission `bywire host run gcdc --lane-map FILE`
+drives on (or a `world_model` module's `map_file`).
 Bad input gets a clear error: no usable fix, a track shorter than one segment, an unreadable file.
 """
 

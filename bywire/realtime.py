@@ -1,4 +1,5 @@
-"""Real-time set-up of the ECU process: SCHED_FIFO priority, CPU affinity, locked memory, frozen GC.
+"""Real-time set-up of a process (the ECU, the host, the bus servers): SCHED_FIFO priority, CPU affinity,
+locked memory, frozen GC.
 
 Paper: seed 000 Sec. 3 relays vehicle control commands at 1 kHz between the control process and
 the ECU (KogMo-RTDB) but does not describe how that loop is made real-time; this module is our own

@@ -1,4 +1,4 @@
-"""Small helpers shared by the HIL child processes (plant, host): start handshake and clean shutdown."""
+"""Small helpers shared by the processes of a run (plant, host): start handshake and clean shutdown."""
 
 from __future__ import annotations
 
