@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from mcap.writer import Writer
 from runtime_log_types import Faults, Mode, Point, Pose, Status
 
-from bywire.host.runtime import log_cli
+from bywire.host import log_cli
 from bywire.host.runtime.log_schema import LogError, decode_object, schema_bytes
 from bywire.host.runtime.mcap_reader import McapLogReader, read_frames, read_objects
 from bywire.host.runtime.mcap_recorder import McapRecorder

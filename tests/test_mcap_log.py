@@ -25,7 +25,7 @@ import pytest
 from mcap.reader import make_reader
 from runtime_log_types import Faults, Mode, Point, Pose, Source, Status, Tick
 
-from bywire.host.runtime import log_cli
+from bywire.host import log_cli
 from bywire.host.runtime.can_frame import CAN_FRAME_SCHEMA
 from bywire.host.runtime.live_view import LiveView
 from bywire.host.runtime.log_schema import LogError, decode_object, encode_object, json_schema, register_type

@@ -18,8 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from module_harness import Harness
 
-from bywire.hil.world.links import BytePipe, FdWriter, SerialReader
-from bywire.hil.world.map_cli import track_from_nmea
+from bywire.hil.world.links import BytePipe, FdWriter
+from bywire.hil.world.pty_link import PtyLink
 from bywire.host.config import HostConfigError, load_host_config, parse_host_config
 from bywire.host.geo import LocalFrame
 from bywire.host.modules import KINDS
@@ -41,9 +41,10 @@ from bywire.host.modules.gcdc_messages import (
     RoadsideItem,
 )
 from bywire.host.modules.messages import CONTROL, MISSION, ODOMETRY, MissionCommand, Odometry
+from bywire.host.platoon.record_map import track_from_nmea
 from bywire.host.world.lanemap import LaneMap
 from bywire.host.world.nmea_emulator import EmulatorConfig, ReceiverEmulator, TruthState
-from bywire.host.world.serial_link import PtyLink
+from bywire.host.world.serial_link import SerialReader
 from bywire.protocol.v2x.transport import MemV2xTransport, V2xUrlError, open_v2x
 
 EPOCH = 1305374400.0
@@ -205,7 +206,7 @@ def _control(
     for k in range(steps):
         t = 10.0 + 0.05 * k
         h.publish(
-            MISSION, MissionCommand(t, "drive", v_des, 0.0, 0.0, False, True, False, False, False, math.nan)
+            MISSION, MissionCommand(t, "drive", v_des, 0.0, 0.0, False, True, False, False, math.nan)
         )
         h.publish(ODOMETRY, Odometry(t, 0.0, speed, True))
         if world:
@@ -339,7 +340,7 @@ def test_record_map_from_an_nmea_drive(tmp_path: Path) -> None:
     log = tmp_path / "drive.nmea"
     log.write_bytes(b"garbage\r\n" + data)
     out = tmp_path / "map.json"
-    from bywire.hil.world import map_cli
+    from bywire.host.platoon import record_map as map_cli
 
     class Args:
         nmea_log = log
@@ -381,11 +382,12 @@ def test_why_the_follow_qp_alone_is_not_string_stable_at_0_6_s() -> None:
 
 
 def test_world_model_puts_vehicles_and_road_side_on_our_lane_and_ignores_the_off_map() -> None:
+    from bywire.hil.host_inputs import host_inputs
     from bywire.hil.scenario import load_scenario
     from bywire.host.modules import HostResources
     from bywire.host.modules.gcdc_messages import V2vBatch, V2vLight, V2vVehicle
 
-    res = HostResources(load_scenario("gcdc_heat"), 0.0)
+    res = HostResources(host_inputs(load_scenario("gcdc_heat")), 0.0)
     h = Harness("world_model", KINDS["world_model"].build({}, res))
     frame = res.local_frame()
 

@@ -21,13 +21,14 @@ import pytest
 from shared_data import shared_data_dir
 
 from bywire.hil.evaluate import evaluate
+from bywire.hil.host_inputs import recorded_inputs
 from bywire.hil.platoon_eval import limit_violations, speed_limit_excess
 from bywire.hil.run import run_scenario
 from bywire.hil.scenario import Scenario, load_scenario
 from bywire.hil.sil import run_sil
-from bywire.hil.trace import CONTROLLERS
 from bywire.hil.world.spec import FuzzSpec, SinusoidSpec, VehicleSpec
-from bywire.host.runtime.replay import replay
+from bywire.host.replay import replay
+from bywire.host.trace import CONTROLLERS
 
 PLATOON_SCENARIOS = ("gcdc_heat", "platoon_sinusoid", "platoon_braking", "platoon_bridge_outage", "v2v_fuzz")
 
@@ -131,7 +132,7 @@ def test_a_heat_recording_replays_exactly(tmp_path: Path) -> None:
     sc = dataclasses.replace(load_scenario("gcdc_heat"), duration_s=5.0)
     rec = tmp_path / "heat.mcap"
     run_sil(sc, record=rec)
-    result = replay(rec)
+    result = replay(rec, inputs_for=recorded_inputs)
     assert result.matches, result.to_json()
     assert {"/ego/pose", "/world/leads", "/control/request", "/platoon/status"} <= set(result.topics)
 

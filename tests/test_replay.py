@@ -19,11 +19,11 @@ import pytest
 
 from bywire.hil.scenario import load_scenario
 from bywire.hil.sil import run_sil
+from bywire.host.log_cli import log_info
 from bywire.host.modules.messages import CONTROL, ControlRequest
-from bywire.host.runtime.log_cli import log_info
+from bywire.host.replay import ReplayError, replay
 from bywire.host.runtime.mcap_reader import read_frames, read_objects
 from bywire.host.runtime.mcap_recorder import McapRecorder
-from bywire.host.runtime.replay import ReplayError, replay
 
 REFERENCE = Path(__file__).parent / "data" / "replay" / "demo_10s.mcap"
 

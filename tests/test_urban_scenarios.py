@@ -162,12 +162,13 @@ def test_whole_missions(name: str) -> None:
 
 
 def test_a_recording_replays_exactly(tmp_path: Path) -> None:
-    from bywire.host.runtime.replay import replay
+    from bywire.hil.host_inputs import recorded_inputs
+    from bywire.host.replay import replay
 
     rec = tmp_path / "urban.mcap"
     sc = dataclasses.replace(load_scenario("four_way_stop_1"), duration_s=30.0)
     run(sc, record=rec)
-    result = replay(rec)
+    result = replay(rec, inputs_for=recorded_inputs)
     assert result.matches, json.dumps(result.to_json()["topics"], indent=1)
     assert {"behaviour", "control"} <= set(result.modules)
     assert result.topics["/urban/plan"].compared > 500

@@ -23,7 +23,8 @@ import threading
 import time
 from typing import Any
 
-from bywire.hil.scenario import MODULE_FAULTS, FaultEvent, Scenario
+from bywire.hil.scenario import MODULE_FAULTS, FaultEvent, Scenario, ScenarioError
+from bywire.host.config import HostConfig
 
 
 class InjectedFault(RuntimeError):
@@ -31,11 +32,25 @@ class InjectedFault(RuntimeError):
 
 
 class ModuleFaultInjector:
-    def __init__(self, scenario: Scenario, t0_s: float) -> None:
+    """A scenario's host-side faults, handed to the host as its `HostFaultHooks`: module faults, and,
+    `in_process` (SIL), the host stopping itself where HIL freezes or kills its process."""
+
+    def __init__(self, scenario: Scenario, t0_s: float, in_process: bool = True) -> None:
         self.faults: tuple[FaultEvent, ...] = scenario.faults_of(*MODULE_FAULTS)
         self.t0_s = t0_s
+        # Looked up once: the host asks every simulated millisecond.
+        self._stop_faults = scenario.faults_of("host_freeze", "host_kill") if in_process else ()
+        self._mute_faults = scenario.faults_of("heartbeat_mute")
         self._fired: set[int] = set()
         self._lock = threading.Lock()
+
+    def host_stopped(self, now_s: float) -> bool:
+        t = now_s - self.t0_s
+        return any(f.active(t) for f in self._stop_faults)
+
+    def heartbeat_muted(self, now_s: float) -> bool:
+        t = now_s - self.t0_s
+        return any(f.active(t) for f in self._mute_faults)
 
     def _take(self, i: int) -> bool:
         with self._lock:
@@ -76,3 +91,30 @@ class ModuleFaultInjector:
             process = getattr(entry.worker, "process", None)
             if runtime.lockstep and process is not None:
                 process.join(1.0)  # dead before the supervisor looks: SIL stays deterministic
+
+
+def check_module_faults(scenario: Scenario, config: HostConfig) -> None:
+    """A module fault that names no module of this host would silently do nothing: refuse it."""
+    modules = {m.spec.name: m for m in config.modules}
+    for i, f in enumerate(scenario.faults):
+        if f.kind not in MODULE_FAULTS:
+            continue
+        if f.module not in modules:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].module",
+                f"no module {f.module!r} in host configuration {config.source} ({', '.join(modules)})",
+            )
+        isolated = modules[f.module].spec.isolation == "process"
+        if f.kind == "module_kill" and not isolated:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].kind",
+                f"{f.module} runs in a thread of the host: only a worker process can be killed",
+            )
+        if f.kind != "module_kill" and isolated:
+            raise ScenarioError(
+                scenario.source,
+                f"faults[{i}].kind",
+                f"{f.kind} is injected into thread workers; {f.module} runs in a process",
+            )

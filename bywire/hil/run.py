@@ -31,7 +31,7 @@ def run_scenario(
         from bywire.hil.world.replay import leader_profile_from_csv
 
         profile = leader_profile_from_csv(scenario, leader_profile)
-    from bywire.host.agent import check_module_faults
+    from bywire.hil.module_faults import check_module_faults
     from bywire.host.config import load_host_config
 
     check_module_faults(scenario, load_host_config(scenario.host_config))  # before any process starts

@@ -28,24 +28,35 @@ import numpy as np
 
 from bywire.clock import SimClock
 from bywire.ecu.app import EcuApp, EcuConfig
+from bywire.hil.host_inputs import host_inputs
+from bywire.hil.module_faults import ModuleFaultInjector
 from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.recording import Recorder
 from bywire.hil.run_calibration import load_run_calibration
 from bywire.hil.scenario import Scenario
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil_bus import SimVirtualBus
-from bywire.hil.trace import HOST_COLUMNS, PLANT_COLUMNS, TraceWriter
+from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import BytePipe
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.agent import HostAgent
+from bywire.host.config import load_host_config
+from bywire.host.trace import HOST_COLUMNS, TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
+from bywire.protocol.vehicle_can import VehicleCodec
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001
-RADAR_FILTER = [{"can_id": 0x300, "can_mask": 0x7FF, "extended": False}]  # RADAR_Target only
-ODOMETRY_FILTER = [  # GW_WheelSpeeds (0x120) and GW_Motion (0x121)
-    {"can_id": 0x120, "can_mask": 0x7FE, "extended": False},
-]
+
+
+def _filters(*messages: str) -> list[dict[str, Any]]:
+    """python-can receive filters passing exactly these DBC messages."""
+    dbc = VehicleCodec()
+    return [{"can_id": dbc.info(m).frame_id, "can_mask": 0x7FF, "extended": False} for m in messages]
+
+
+RADAR_FILTER = _filters("RADAR_Target")
+ODOMETRY_FILTER = _filters("GW_WheelSpeeds", "GW_Motion")
 
 
 @dataclass
@@ -120,9 +131,11 @@ def run_sil(
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
         link = HostMaster(bus(link_ch), clock)
         host = HostAgent(
-            scenario,
+            host_inputs(scenario),
             link,
             t0_s=0.0,
+            config=load_host_config(scenario.host_config),
+            faults=ModuleFaultInjector(scenario, 0.0),
             sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER),
             trace=host_trace,
             clock=clock,

@@ -1,6 +1,6 @@
 """The host agent: the spine's host as modules on the runtime (issue 3), one store, one clock.
 
-The agent builds the runtime from a host configuration (`host.config`): the scenario's mission,
+The agent builds the runtime from a host configuration (`host.config`): the driver's commands,
 the ECU link (status in, requests and heartbeat out), odometry, radar and lead tracker, and the
 longitudinal override controller of seed 000 section 11.2 (or, in the `gcdc` configuration of issue 4,
 GPS, pose, V2V, world model and platoon control over the V2X link and the GPS line it is given; in the
@@ -15,21 +15,19 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import can
 
 from bywire.clock import Clock, SimClock
-from bywire.hil.module_faults import ModuleFaultInjector
-from bywire.hil.scenario import MODULE_FAULTS, Scenario, ScenarioError
-from bywire.hil.trace import HOST_COLUMNS, TraceWriter
-from bywire.host.config import HostConfig, load_host_config
+from bywire.host.config import HostConfig
+from bywire.host.inputs import HostFaultHooks, HostInputs, NoFaults
 from bywire.host.modules import KINDS, HostResources
 from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.runtime import Runtime
 from bywire.host.runtime.store import ObjectStore
+from bywire.host.trace import HOST_COLUMNS, TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
 
 
@@ -38,15 +36,15 @@ class HostAgent:
 
     def __init__(
         self,
-        scenario: Scenario,
+        inputs: HostInputs,
         link: HostMaster,
         t0_s: float,
+        config: HostConfig,
         sensor_bus: can.BusABC | None = None,
         trace: TraceWriter | None = None,
-        config: HostConfig | None = None,
         clock: Clock | None = None,
         lockstep: bool = True,
-        in_process_faults: bool = True,
+        faults: HostFaultHooks | None = None,
         store: ObjectStore | None = None,
         v2x: Any = None,
         gps: Any = None,
@@ -54,14 +52,15 @@ class HostAgent:
         unix_time: Callable[[float], float] | None = None,
         objects: Any = None,
     ) -> None:
-        self.scenario = scenario
+        self.inputs = inputs
         self.t0_s = t0_s
-        self.config = config or load_host_config(scenario.host_config)
+        self.config = config
+        self.faults: HostFaultHooks = faults if faults is not None else NoFaults()
         self.clock = clock or SimClock(t0_s)
         self.store = store or ObjectStore()
         self.trace = trace or TraceWriter(None, HOST_COLUMNS)
         self.resources = HostResources(
-            scenario,
+            inputs,
             t0_s,
             link,
             sensor_bus,
@@ -71,34 +70,27 @@ class HostAgent:
             vehicle_bus=vehicle_bus,
             unix_time=unix_time,
             objects=objects,
+            faults=self.faults,
         )
         self.resources.prepare_world(self.config.modules)
-        # In HIL the runner freezes or kills the real process; in SIL the agent stops itself.
-        self.in_process_faults = in_process_faults
-        # The faults that stop this host in process, looked up once: `step` runs every millisecond.
-        self._stop_faults = (
-            tuple(f for f in scenario.faults if f.kind in ("host_freeze", "host_kill"))
-            if in_process_faults
-            else ()
-        )
-        check_module_faults(scenario, self.config)
         self.stopped = False
         process_worker = None
         if any(m.spec.isolation == "process" for m in self.config.modules):
+            from bywire.host.modules import build_isolated
             from bywire.host.runtime.process_worker import process_worker_maker
 
-            process_worker = process_worker_maker(lockstep=lockstep)
+            process_worker = process_worker_maker(lockstep=lockstep, build=build_isolated)
         if not lockstep:
             # A module stuck in a pure-Python loop holds the GIL; the scheduler thread gets it back
             # only at the interpreter's switch interval (5 ms by default), once per blocking call.
             # 0.5 ms keeps the supervisor's own timing within its bounds while the culprit spins.
             sys.setswitchinterval(0.0005)
-        self.injector = ModuleFaultInjector(scenario, t0_s)
+        self.faults.t0_s = t0_s
         self.runtime = Runtime(
             self.store,
             self.clock,
             lockstep=lockstep,
-            injector=self.injector,
+            injector=self.faults,
             health_period_s=self.config.health_period_s,
             process_worker=process_worker,
         )
@@ -119,16 +111,12 @@ class HostAgent:
         """The run's start instant, when it is known only after `prestart` (a HIL start handshake)."""
         if self._started:
             raise RuntimeError("t0 is fixed once the host runs")
-        self.t0_s = self.resources.t0_s = self.injector.t0_s = t0_s
-
-    def _stopped_by_fault(self, t: float) -> bool:
-        return any(f.active(t) for f in self._stop_faults)
+        self.t0_s = self.resources.t0_s = self.faults.t0_s = t0_s
 
     def step(self, now_s: float) -> None:
         if self.stopped:
             return
-        t = now_s - self.t0_s
-        if self._stop_faults and self._stopped_by_fault(t):
+        if self.faults.host_stopped(now_s):
             self.stopped = True  # SIL's stand-in for SIGSTOP / SIGKILL of the host process
             return
         if not self._started:
@@ -140,13 +128,14 @@ class HostAgent:
         self.runtime.run_wall(until_s, stop, self.config.tick_s)
 
     def _start(self, now_s: float) -> None:
-        # First on the record: what a replay needs to rebuild this host (scenario and configuration).
+        # First on the record: what a replay needs to rebuild this host (its configuration), and what
+        # its mission came from.
         self.store.publish(
             RUN_INFO,
             RunInfo(
                 t_s=now_s,
-                scenario_source=self.scenario.source,
-                scenario_text=_read_text(self.scenario.source),
+                scenario_source=self.inputs.source,
+                scenario_text=self.inputs.source_text,
                 host_config_source=self.config.source,
                 host_config_json=json.dumps(self.config.data, sort_keys=True),
                 lockstep=self.runtime.lockstep,
@@ -190,37 +179,3 @@ class HostAgent:
     def close(self) -> None:
         if self._started:
             self.runtime.close()
-
-
-def check_module_faults(scenario: Scenario, config: HostConfig) -> None:
-    """A module fault that names no module of this host would silently do nothing: refuse it."""
-    modules = {m.spec.name: m for m in config.modules}
-    for i, f in enumerate(scenario.faults):
-        if f.kind not in MODULE_FAULTS:
-            continue
-        if f.module not in modules:
-            raise ScenarioError(
-                scenario.source,
-                f"faults[{i}].module",
-                f"no module {f.module!r} in host configuration {config.source} ({', '.join(modules)})",
-            )
-        isolated = modules[f.module].spec.isolation == "process"
-        if f.kind == "module_kill" and not isolated:
-            raise ScenarioError(
-                scenario.source,
-                f"faults[{i}].kind",
-                f"{f.module} runs in a thread of the host: only a worker process can be killed",
-            )
-        if f.kind != "module_kill" and isolated:
-            raise ScenarioError(
-                scenario.source,
-                f"faults[{i}].kind",
-                f"{f.kind} is injected into thread workers; {f.module} runs in a process",
-            )
-
-
-def _read_text(path: str) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except OSError:
-        return ""  # a scenario built in memory: the recording cannot carry it

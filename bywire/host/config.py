@@ -47,7 +47,6 @@ class HostConfig:
     source: str
     ecu_link: str
     sensor_bus: str | None
-    scenario: str
     tick_s: float
     health_period_s: float
     live_view_port: int | None
@@ -205,7 +204,9 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
     sensor_bus = r.raw("sensor_bus")
     if sensor_bus is not None and not isinstance(sensor_bus, str):
         raise r.error("sensor_bus", f"expected a bus URL or null, got {sensor_bus!r}")
-    scenario = r.string("scenario", default="demo")
+    # `scenario:` named the simulator's script a host drove before a car's mission could be given on the
+    # command line; files that still carry it load, and it means nothing.
+    r.string("scenario", default="")
     v2x = r.raw("v2x")
     if v2x is not None and not (isinstance(v2x, str) and v2x.startswith(("v2x://", "mem://"))):
         raise r.error("v2x", f"expected a v2x://HOST:PORT or mem://NAME link, or null, got {v2x!r}")
@@ -243,7 +244,6 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
         source,
         ecu_link,
         sensor_bus,
-        scenario,
         tick_s,
         health_s,
         port if live else None,

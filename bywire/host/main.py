@@ -1,12 +1,18 @@
-"""`bywire host run [CONFIG]`: the host agent as its own process on the wall clock, talking to the ECU.
+"""`bywire host run CONFIG`: the host agent as its own process on the wall clock, talking to the ECU.
 
-CONFIG is a host configuration (a shipped name such as `default`, or a file; schema in
-docs/host_config.md); without it the scenario's `host.config` is used. Command-line bus URLs
-override the file's.
+CONFIG is a host configuration (a shipped name such as `default`, `gcdc`, `urban`, or a file; schema in
+docs/host_config.md). The mission is what a car's driver gives it: `--rndf F --mdf F` (urban driving,
+seed 000 section 7), `--lane-map F` (platooning on a lane recorded with `bywire platoon record-map`,
+seed 003 section IV-A; its origin is the local frame's), and the driver's commands (`--commands F`, a
+`host.command_script` file, or `--cruise V`). Without commands the host asks to engage only to
+drive a route (--rndf/--mdf).
+Command-line bus URLs override the configuration's: `--host-link` (the ECU, CANopen over CAN or
+UDP), `--sensor-bus` (vehicle CAN: radar, wheel speeds), `--v2x` (v2x://HOST:PORT UDP broadcast),
+`--gps-serial` (the GPS/INS receiver's port: a device, a pty, a pyserial URL). V2V time stamps are
+UNIX time.
 
-Cooperative driving (issue 4, the `gcdc` configuration): `--v2x URL` is the V2X link (v2x://HOST:PORT UDP
-broadcast), `--gps-serial PORT` the GPS/INS receiver's serial port (a device, a pty, a pyserial URL);
-the odometry frames are read off the sensor bus by a second connection. V2V time stamps are UNIX time.
+Nothing here knows the simulator: `bywire host run --scenario NAME` (the HIL runner's) is the same entry
+with the inputs and fault hooks the simulator builds from a scenario (`hil.host_process`).
 """
 
 from __future__ import annotations
@@ -14,43 +20,56 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 from bywire.clock import WallClock
-from bywire.hil.process_util import StopFlag, wait_for_t0
-from bywire.hil.scenario import load_scenario
-from bywire.hil.trace import HOST_COLUMNS, TraceWriter
 from bywire.host.agent import HostAgent
-from bywire.host.config import load_host_config
+from bywire.host.command_script import CommandScript, cruise, load_command_script
+from bywire.host.config import HostConfig, load_host_config
+from bywire.host.inputs import HostFaultHooks, HostInputs, lane_map_file
+from bywire.host.trace import HOST_COLUMNS, TraceWriter
+from bywire.process_util import StopFlag, wait_for_t0
 from bywire.protocol.bus_url import open_bus
 from bywire.protocol.canopen_link.host_master import HostMaster
+from bywire.protocol.vehicle_can import VehicleCodec
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "config",
         nargs="?",
-        help="host configuration: a shipped name (default, isolated_perception) or a YAML/TOML file "
-        "(default: the scenario's host.config)",
+        help="host configuration: a shipped name (default, gcdc, urban, isolated_perception) or a "
+        "YAML/TOML file (default: `default`; with --scenario: the scenario's host.config)",
     )
+    mission = p.add_argument_group("mission (what the driver gives the car)")
+    mission.add_argument("--rndf", type=Path, help="urban driving: the road network (DARPA RNDF)")
+    mission.add_argument("--mdf", type=Path, help="urban driving: the mission on it (DARPA MDF)")
+    mission.add_argument(
+        "--lane-map",
+        type=Path,
+        help="platooning: the lane map (`bywire platoon record-map`); its origin anchors the local frame",
+    )
+    cmd = mission.add_mutually_exclusive_group()
+    cmd.add_argument("--commands", type=Path, help="the driver's command script (YAML; host.command_script)")
+    cmd.add_argument("--cruise", type=float, metavar="V", help="ask to engage and cruise at V m/s")
     p.add_argument(
-        "--scenario", help="scenario whose mission drives the agent (default: the configuration's)"
+        "--scenario",
+        help="simulator only: drive a HIL scenario's script and faults instead of a car's mission",
     )
     p.add_argument(
         "--host-link", help="bus URL of the host<->ECU link (CANopen), CAN or Ethernet (udp://...)"
     )
-    p.add_argument("--sensor-bus", help="bus URL where the radar frames arrive")
+    p.add_argument("--sensor-bus", help="bus URL of vehicle CAN (radar frames, wheel speeds)")
     p.add_argument(
         "--v2x", help="V2X link (v2x://HOST:PORT[?bind=..&iface=..]); default: the configuration's"
     )
     p.add_argument(
         "--gps-serial", help="GPS/INS serial port (path or pyserial URL); default: the configuration's"
     )
-    p.add_argument(
-        "--objects", help="object link (issue 5: pose + object list), udp://127.0.0.1:PORT or mem://NAME"
-    )
+    p.add_argument("--objects", help="object link (pose + object list), udp://127.0.0.1:PORT or mem://NAME")
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
     p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
     p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
@@ -61,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="serve every topic live to Foxglove (ws://127.0.0.1:PORT; default: the configuration's, off)",
     )
     p.add_argument("--t0", help="start instant on CLOCK_MONOTONIC, or '-' to read it from stdin")
-    p.add_argument("--seconds", type=float, help="stop after this long (default: the scenario's duration)")
+    p.add_argument("--seconds", type=float, help="stop after this long (default: until stopped)")
     p.add_argument(
         "--rt-priority",
         type=int,
@@ -70,14 +89,46 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def car_inputs(args: argparse.Namespace) -> HostInputs:
+    """The mission a car's command line gives (see the module docstring)."""
+    if (args.rndf is None) != (args.mdf is None):
+        raise SystemExit("host run: --rndf and --mdf go together (the road network and the mission on it)")
+    for flag, path in (("--rndf", args.rndf), ("--mdf", args.mdf), ("--lane-map", args.lane_map)):
+        if path is not None and not path.is_file():
+            raise SystemExit(f"host run: {flag}: no such file {path}")
+    # A route to drive is the driver's wish to drive it: the host asks to engage from the start (the
+    # ECU engages only once its driver has armed it). With nothing to drive it asks for nothing.
+    commands = CommandScript(engage_at_s=0.0 if args.rndf is not None else math.inf)
+    if args.commands is not None:
+        commands = load_command_script(args.commands)
+    elif args.cruise is not None:
+        commands = cruise(args.cruise)
+    parts = [
+        f"{k}={v}" for k, v in (("rndf", args.rndf), ("mdf", args.mdf), ("lane_map", args.lane_map)) if v
+    ]
+    parts.append(f"commands={commands.source}")
+    return HostInputs(
+        commands=commands,
+        rndf=str(args.rndf) if args.rndf is not None else None,
+        mdf=str(args.mdf) if args.mdf is not None else None,
+        lane_map=lane_map_file(args.lane_map) if args.lane_map is not None else None,
+        source="bywire host run " + " ".join(parts),
+        source_text=json.dumps({k: str(v) for k, v in vars(args).items() if v is not None}, sort_keys=True),
+    )
+
+
 def main(args: argparse.Namespace) -> int:
+    if args.scenario is not None:
+        raise SystemExit("host run: --scenario needs the simulator (run it as `bywire host run`)")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if args.config is not None:
-        config = load_host_config(args.config)
-        scenario = load_scenario(args.scenario or config.scenario)
-    else:
-        scenario = load_scenario(args.scenario or "demo")
-        config = load_host_config(scenario.host_config)
+    config = load_host_config(args.config or "default")
+    return run_host(args, config, car_inputs(args))
+
+
+def run_host(
+    args: argparse.Namespace, config: HostConfig, inputs: HostInputs, faults: HostFaultHooks | None = None
+) -> int:
+    """Run the host on the wall clock until `--seconds`, the mission's end, or SIGINT/SIGTERM."""
     clock = WallClock()
     stop = StopFlag()
     link_bus = open_bus(args.host_link or config.ecu_link)
@@ -100,7 +151,7 @@ def main(args: argparse.Namespace) -> int:
 
         v2x = open_v2x(v2x_url)
     if gps_port:
-        from bywire.hil.world.links import SerialReader
+        from bywire.host.world.serial_link import SerialReader
 
         gps = SerialReader(gps_port, clock.now)
     if sensor_bus is not None and config.uses("vehicle_sensors"):
@@ -108,29 +159,30 @@ def main(args: argparse.Namespace) -> int:
         from bywire.host.modules.fanout_bus import FanoutBus
 
         fanout = FanoutBus(sensor_bus)
-        sensor_bus = fanout.view({0x300})  # type: ignore[assignment]  # RADAR_Target
-        vehicle_bus = fanout.view({0x120, 0x121})  # GW_WheelSpeeds, GW_Motion
+        dbc = VehicleCodec()
+        sensor_bus = fanout.view({dbc.info("RADAR_Target").frame_id})  # type: ignore[assignment]
+        vehicle_bus = fanout.view({dbc.info("GW_WheelSpeeds").frame_id, dbc.info("GW_Motion").frame_id})
         shared_sensor_bus = fanout
     unix_offset = time.time() - time.monotonic()
     recorder: Any = None  # McapRecorder when asked for
     live: Any = None  # LiveView when asked for
     if args.rt_priority:
-        from bywire.ecu.realtime import apply_realtime
+        from bywire.realtime import apply_realtime
 
         print(f"host: real-time: {apply_realtime(priority=args.rt_priority).summary()}", flush=True)
     agent: HostAgent | None = None
     try:
         link = HostMaster(link_bus, clock)
         agent = HostAgent(
-            scenario,
+            inputs,
             link,
             t0_s=0.0,  # set below, once the runner has said when the run starts
+            config=config,
             sensor_bus=sensor_bus,
             trace=trace,
-            config=config,
             clock=clock,
             lockstep=False,
-            in_process_faults=False,
+            faults=faults,
             v2x=v2x,
             gps=gps,
             vehicle_bus=vehicle_bus,  # type: ignore[arg-type]
@@ -153,11 +205,12 @@ def main(args: argparse.Namespace) -> int:
             agent.store.add_tap(live.publish)
             print(f"host: live view for Foxglove on {live.url}", flush=True)
         if args.record is not None:
-            from bywire.host.runtime.mcap_log import McapRecorder
+            from bywire.host.runtime.mcap_recorder import McapRecorder
 
             recorder = McapRecorder(args.record)
             agent.store.add_tap(recorder.record)
-        end = t0 + (args.seconds if args.seconds is not None else scenario.duration_s + 2.0)
+        seconds = args.seconds if args.seconds is not None else inputs.duration_s
+        end = t0 + seconds if seconds is not None else float("inf")
         clock.sleep_until(t0)
         agent.run_wall(end, stop)
     finally:

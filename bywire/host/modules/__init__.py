@@ -9,25 +9,25 @@ vehicle sensors, world model, platoon control) and their resources (the V2X link
 the vehicle bus for odometry, the wall-clock mapping of V2V time stamps).
 
 Issue 5 adds the urban kinds of `host.modules.urban` (`urban_io`, `urban_behaviour`, `urban_control`) and
-their resources: the object link (`protocol.objects`), the road network built once from the scenario's
+their resources: the object link (`protocol.objects`), the road network built once from the mission's
 RNDF/MDF, and the log of the behaviour's states for the run's summary.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import can
 
-from bywire.hil.scenario import Scenario
-from bywire.hil.trace import TraceWriter
+from bywire.host.inputs import HostFaultHooks, HostInputs, NoFaults
 from bywire.host.modules import gcdc_messages as g
 from bywire.host.modules import messages as m
 from bywire.host.modules import urban_messages as u
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
+from bywire.host.trace import TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
 
 
@@ -35,7 +35,7 @@ from bywire.protocol.canopen_link.host_master import HostMaster
 class HostResources:
     """What modules share that is not data: adapters owned by the host process."""
 
-    scenario: Scenario
+    inputs: HostInputs
     t0_s: float
     link: HostMaster | None = None
     sensor_bus: can.BusABC | None = None
@@ -49,6 +49,7 @@ class HostResources:
     unix_time: Callable[[float], float] | None = None
     # Issue 5 (urban): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
     objects: Any = None
+    faults: HostFaultHooks = field(default_factory=NoFaults)
 
     # Built once per host (a pyproj frame takes ~0.1 s, a lane map ~1 s): a module's start must not
     # spend its hang bound on them, nor a restart. `prepare_world` builds them before the runtime starts;
@@ -59,18 +60,18 @@ class HostResources:
     _urban_log: Any = None
 
     def urban_network(self) -> Any:
-        """(graph, mission, lane index) of the scenario's `urban:` RNDF/MDF, built once (ValueError
-        without one)."""
+        """(graph, mission, lane index) of the mission's RNDF/MDF, built once (ValueError without one)."""
         if self._urban_network is None:
-            urban = self.scenario.urban
-            if urban is None:
+            rndf, mdf = self.inputs.rndf, self.inputs.mdf
+            if rndf is None or mdf is None:
                 raise ValueError(
-                    f"{self.scenario.source}: the urban modules need a scenario with an urban: section"
+                    f"{self.inputs.source}: the urban modules need a road network and a mission "
+                    "(--rndf FILE --mdf FILE)"
                 )
-            from bywire.hil.world.urban import load_network
             from bywire.host.roadnet.lane_index import LaneIndex
+            from bywire.host.roadnet.network import load_network
 
-            graph, mission = load_network(urban.rndf, urban.mdf)
+            graph, mission = load_network(rndf, mdf)
             self._urban_network = (graph, mission, LaneIndex(graph))
         return self._urban_network
 
@@ -83,18 +84,22 @@ class HostResources:
 
     def local_frame(self) -> Any:
         if self._frame is None:
-            from bywire.host.modules.gcdc import scenario_frame
-
-            self._frame = scenario_frame(self.scenario)
+            self._frame = self.inputs.frame()
         return self._frame
 
     def lane_map(self, map_file: str | None = None) -> Any:
+        """The mission's lane map, or a module's own `map_file`."""
         if self._lanemaps is None:
             self._lanemaps = {}
         if map_file not in self._lanemaps:
-            from bywire.host.modules.gcdc import scenario_lane_map
+            if map_file:
+                from bywire.host.inputs import lane_map_file
 
-            self._lanemaps[map_file] = scenario_lane_map(self.scenario, map_file)
+                self._lanemaps[map_file] = lane_map_file(map_file)()
+            elif self.inputs.lane_map is not None:
+                self._lanemaps[map_file] = self.inputs.lane_map()
+            else:
+                raise ValueError(f"{self.inputs.source}: the world model needs a lane map (--lane-map FILE)")
         return self._lanemaps[map_file]
 
     def prepare_world(self, modules: Any) -> None:
@@ -114,7 +119,7 @@ class HostResources:
     def unix_time_fn(self) -> Callable[[float], float]:
         if self.unix_time is not None:
             return self.unix_time
-        epoch = self.scenario.world.v2v.epoch_unix_s if self.scenario.world is not None else 1305374400.0
+        epoch = self.inputs.v2v_epoch_unix_s
         return lambda now_s: epoch + now_s - self.t0_s
 
 
@@ -135,10 +140,10 @@ class ModuleKind:
 
 
 def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.mission import ScenarioMission
+    from bywire.host.modules.mission import ScriptMission
 
     assert res is not None
-    return ScenarioMission(res.scenario, res.t0_s)
+    return ScriptMission(res.inputs.commands, res.t0_s)
 
 
 def _ecu_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -164,7 +169,13 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
         raise ValueError(
             f"ecu_tx: params.request_max_age_ms must be a number in 20..1000 ms, got {max_age_ms!r}"
         )
-    return EcuTx(res.link, res.trace, res.t0_s, request_max_age_s=max_age_ms / 1e3)
+    return EcuTx(
+        res.link,
+        res.trace,
+        res.t0_s,
+        request_max_age_s=max_age_ms / 1e3,
+        heartbeat_muted=res.faults.heartbeat_muted,
+    )
 
 
 def _odometry(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -206,8 +217,7 @@ def _vehicle_sensors(params: Mapping[str, Any], res: HostResources | None) -> Mo
 def _station_id(params: Mapping[str, Any], res: HostResources | None) -> int:
     if "station_id" in params:
         return int(params["station_id"])
-    world = res.scenario.world if res is not None else None
-    return world.ego.station_id if world is not None else 1
+    return res.inputs.station_id if res is not None else 1
 
 
 def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -284,7 +294,11 @@ def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Modu
 KINDS: dict[str, ModuleKind] = {
     k.kind: k
     for k in (
-        ModuleKind("scenario_mission", (), (m.MISSION,), 0.02, 0.010, _mission, doc="the scenario's script"),
+        ModuleKind(
+            "command_script", (), (m.MISSION,), 0.02, 0.010, _mission, doc="the driver's commands (a script)"
+        ),
+        # The kind's name before cars could run without a scenario: configurations that name it still load.
+        ModuleKind("scenario_mission", (), (m.MISSION,), 0.02, 0.010, _mission, doc="= command_script"),
         ModuleKind("ecu_rx", (), (m.ECU_STATUS,), 0.02, 0.010, _ecu_rx, doc="ECU status from the link"),
         ModuleKind(
             "odometry", (m.ECU_STATUS,), (m.ODOMETRY,), 0.02, 0.010, _odometry, False, "distance driven"
@@ -395,3 +409,8 @@ KINDS: dict[str, ModuleKind] = {
         ),
     )
 }
+
+
+def build_isolated(kind: str, params: dict[str, Any]) -> Module:
+    """A module of a kind that needs no host resources, in a worker process of its own."""
+    return KINDS[kind].build(params, None)

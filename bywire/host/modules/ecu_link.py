@@ -8,7 +8,7 @@ acts on them only while they keep coming).
 EcuTx is the host's last check before the ECU: it sends a control request only if it is fresh
 (`REQUEST_MAX_AGE_S`); if the controller has gone silent it asks for a controlled stop (STOP flag,
 zero acceleration) instead of repeating an old request, and it adds STOP whenever the supervisor
-asked for one. The heartbeat stops only when the host itself stops (or a scenario mutes it): a host
+asked for one. The heartbeat stops only when the host itself stops (or a test mutes it): a host
 whose controller failed is still alive, and says so while it stops the car in an orderly way.
 
 Engagement is an edge (ecu.safety): the ECU goes from READY to ENGAGED only when the ENGAGE flag
@@ -24,8 +24,8 @@ mission asks anew.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
-from bywire.hil.trace import CONTROLLERS, TraceWriter
 from bywire.host.modules.messages import (
     CONTROL,
     ECU_REQUEST,
@@ -40,6 +40,7 @@ from bywire.host.modules.messages import (
 )
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import STOP_REQUEST
+from bywire.host.trace import CONTROLLERS, TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
 from bywire.protocol.canopen_link.nmt import NmtState
 from bywire.protocol.ecu_types import EcuState, RequestFlags
@@ -131,8 +132,11 @@ class EcuTx(Module):
         trace: TraceWriter | None = None,
         t0_s: float = 0.0,
         request_max_age_s: float = REQUEST_MAX_AGE_S,
+        heartbeat_muted: Callable[[float], bool] | None = None,
     ) -> None:
         self.link = link
+        # A test harness's door to a host that keeps requesting but has lost its heartbeat thread.
+        self.heartbeat_muted = heartbeat_muted
         self.request_max_age_s = request_max_age_s
         self.trace = trace
         self.t0_s = t0_s
@@ -170,7 +174,7 @@ class EcuTx(Module):
         self.link.send_request(
             HostRequest(accel_mps2=accel, steer_angle_rad=steer, flags=flags, counter=self.counter)
         )
-        heartbeat = mission is None or not mission.heartbeat_mute
+        heartbeat = self.heartbeat_muted is None or not self.heartbeat_muted(now)
         if heartbeat:
             self.link.tick(now)
         ctx.publish(

@@ -63,7 +63,6 @@ from typing import Any
 import can
 import numpy as np
 
-from bywire.hil.scenario import Scenario
 from bywire.host.geo import LocalFrame, wrap_angle
 from bywire.host.modules.gcdc_messages import (
     EGO_MOTION,
@@ -107,7 +106,7 @@ from bywire.host.platoon.lead_compensation import (
 from bywire.host.platoon.strategy import PlatoonStrategy
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import SAFETY_LIMIT, SafetyLimit
-from bywire.host.world.lanemap import LaneMap, record_lane
+from bywire.host.world.lanemap import LaneMap
 from bywire.host.world.pose import Pose, PoseServer, PoseServerConfig
 from bywire.host.world.radar_fusion import FusionConfig, RadarFusion, RadarMeasurement
 from bywire.host.world.vehicles import VehicleManager, VehicleMessage
@@ -129,39 +128,6 @@ STANDSTILL_MPS = 0.5
 HOLD_DECEL_MPS2 = -1.0  # standstill request behind a stopped car; the ECU's hold brake does the rest
 STOP_REACHED_M = 0.3  # at the stop line
 MAX_DATAGRAMS_PER_RELEASE = 200  # bounds a release under a flood; the rest waits in the socket buffer
-DEFAULT_ORIGIN = (51.4708, 5.6230)  # the A270 of GCDC 2011, for a scenario without a world
-LANE_MAP_LENGTH_M = 20_000.0
-
-
-def scenario_frame(scenario: Scenario) -> LocalFrame:
-    w = scenario.world
-    if w is None:
-        return LocalFrame(*DEFAULT_ORIGIN)
-    return LocalFrame(w.road.origin_lat_deg, w.road.origin_lon_deg)
-
-
-def scenario_lane_map(scenario: Scenario, map_file: str | None = None) -> LaneMap:
-    """The lane map: a file (`LaneMap.load`, e.g. recorded by driving the lane), else recorded from the
-    scenario road's right lane (seed 003 IV-A) with the other lanes at their offsets."""
-    if map_file:
-        from pathlib import Path
-
-        return LaneMap.load(Path(map_file))
-    frame = scenario_frame(scenario)
-    w = scenario.world
-    if w is None:
-        track = np.array([[0.0, 0.0], [LANE_MAP_LENGTH_M, 0.0]])
-        return record_lane(np.linspace(track[0], track[1], 200), frame)
-    from bywire.hil.world.road import Road
-
-    road = Road(w.road)
-    path = road.lane(0).path
-    s = np.arange(0.0, path.length_m + 1e-9, 1.0)
-    x, y, _, _ = path.sample(s)
-    lanemap = record_lane(np.column_stack((x, y)), frame, smooth_m=0.5)
-    for k in range(1, w.road.lanes):
-        lanemap = lanemap.with_offset_lane(0, k * w.road.lane_width_m, k, name=f"lane{k}")
-    return lanemap
 
 
 # ----------------------------------------------------------------------------------------------- adapters
@@ -742,6 +708,4 @@ __all__ = [
     "V2vTxIo",
     "VehicleSensorsIo",
     "WorldModel",
-    "scenario_frame",
-    "scenario_lane_map",
 ]

@@ -25,10 +25,10 @@ CONTROL = "/control/request"
 RUN_INFO = "/run/info"
 
 
-@register_type
+@register_type(retired=("heartbeat_mute",))
 @dataclass(frozen=True)
 class MissionCommand:
-    """What the mission wants now: the scenario's script until the mission planner exists (issue 5)."""
+    """What the mission wants now: the driver's command script (`host.command_script`)."""
 
     t_s: float
     mode: str  # "script": follow accel_mps2; "drive": the longitudinal override controller
@@ -39,7 +39,6 @@ class MissionCommand:
     engage: bool
     rearm: bool
     stop: bool  # ask the ECU for a controlled stop
-    heartbeat_mute: bool  # fault injection: keep requesting but stop the CANopen heartbeat
     stop_line_m: float  # along the path from the start (nan: no stop line)
 
     def request_flags(self, steer: bool | None = None) -> RequestFlags:

@@ -1,47 +1,37 @@
-"""The scenario's script as a mission module: speed profile, stop line, engage, scripted requests.
+"""The driver's command script as a mission module: speed profile, stop line, engage, button pulses.
 
-A stand-in until the mission planner of issue 5: it turns the scenario's `host` section (and the
-host-side faults of its `faults` list: rearm pulses, STOP requests, a muted heartbeat) into one
-`MissionCommand` per release, so every other module reads the mission from the store, as it will
-once the planner exists.
+It turns a `host.command_script.CommandScript` (a car's `--commands` file or `--cruise` speed; a
+scenario's `host:` section in the simulator) into one `MissionCommand` per release, so every other
+module reads the mission from the store. The urban behaviour (seed 000 sections 8-9) plans on top
+of it: the script's engage wish and buttons still come from here.
 """
 
 from __future__ import annotations
 
-import math
-
-from bywire.hil.scenario import Scenario, ramp_value, step_value
+from bywire.host.command_script import CommandScript
 from bywire.host.modules.messages import MISSION, MissionCommand
 from bywire.host.runtime.module import Module, ModuleContext
 
-REARM_PULSE_S = 0.1  # long enough for the ECU to see a rising edge through a lost frame or two
 
-
-class ScenarioMission(Module):
-    def __init__(self, scenario: Scenario, t0_s: float) -> None:
-        self.scenario = scenario
+class ScriptMission(Module):
+    def __init__(self, script: CommandScript, t0_s: float) -> None:
+        self.script = script
         self.t0_s = t0_s
 
-    def _active(self, kind: str, t: float) -> bool:
-        return any(f.kind == kind and f.active(t) for f in self.scenario.faults)
-
     def step(self, ctx: ModuleContext) -> None:
-        sc = self.scenario
-        t = ctx.now_s - self.t0_s
+        c = self.script.at(ctx.now_s - self.t0_s)
         ctx.publish(
             MISSION,
             MissionCommand(
                 t_s=ctx.now_s,
-                mode=sc.host_mode,
-                v_des_mps=ramp_value(sc.speed_profile, t) if sc.speed_profile else 0.0,
-                accel_mps2=step_value(sc.accel_profile, t) if sc.accel_profile else 0.0,
-                steer_rad=step_value(sc.steer_profile, t) if sc.steer_profile else 0.0,
-                steer=bool(sc.steer_profile),
-                # An engage press lets go of ENGAGE for a moment: the mission asks anew.
-                engage=t >= sc.engage_at_s and not self._active("engage_press", t),
-                rearm=any(f.kind == "rearm" and f.at_s <= t < f.at_s + REARM_PULSE_S for f in sc.faults),
-                stop=self._active("host_stop", t),
-                heartbeat_mute=self._active("heartbeat_mute", t),
-                stop_line_m=math.nan if sc.stop_line_m is None else sc.stop_line_m,
+                mode=c.mode,
+                v_des_mps=c.v_des_mps,
+                accel_mps2=c.accel_mps2,
+                steer_rad=c.steer_rad,
+                steer=c.steer,
+                engage=c.engage,
+                rearm=c.rearm,
+                stop=c.stop,
+                stop_line_m=c.stop_line_m,
             ),
         )

@@ -9,10 +9,11 @@ inputs published before it, and its outputs reach the host before its "done" (lo
 deterministic).
 
 The child is started with the "spawn" method (the host has threads; fork would copy their locks)
-and builds its module from the registry by kind (`host.modules.KINDS`), so only modules that need
-no host resources (buses, trace) can be isolated. A handshake (ready -> hello -> started) makes sure
-both streams are connected before the first release: a subscriber that joins late misses what was
-sent before. After the handshake the host sends the newest object of every input topic.
+and builds its module with the builder the host hands to `process_worker_maker` (a module-level
+function, pickled by name: `host.modules.build_isolated`), so only modules that need no host resources
+(buses, trace) can be isolated; the runtime itself knows no module. A handshake (ready -> hello ->
+started) makes sure both streams are connected before the first release: a subscriber that joins late
+misses what was sent before. After the handshake the host sends the newest object of every input topic.
 
 The supervisor sees a killed or crashed child as a dead worker (`alive()` false), a raising step as
 an exception, and a hung one by its CPU time from /proc, exactly like a thread; `abandon` kills the
@@ -27,12 +28,13 @@ import multiprocessing as mp
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from bywire.clock import Clock
 from bywire.host.runtime.log_schema import register_type
-from bywire.host.runtime.module import ModuleContext, ModuleSpec
+from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
 from bywire.host.runtime.worker import (
     Failure,
@@ -42,6 +44,9 @@ from bywire.host.runtime.worker import (
     describe_exception,
     task_cpu_time_s,
 )
+
+# (kind, parameters) -> a fresh module; a module-level function, so that it reaches the child by name.
+ModuleBuilder = Callable[[str, dict[str, Any]], Module]
 
 HANDSHAKE_PERIOD_S = 0.01
 DEATH_POLL_S = 0.002  # how often a wait for a step also checks that the child is still alive
@@ -120,8 +125,8 @@ def _child_main(
     in_ep: str,
     out_ep: str,
     rt_priority: int = 0,
+    build: ModuleBuilder | None = None,
 ) -> None:
-    from bywire.host.modules import KINDS
     from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber
 
     ctl_topic, status_topic = _topics(spec.name, generation)
@@ -142,7 +147,8 @@ def _child_main(
                 return
         ctx = ModuleContext(spec, store, params, generation)
         try:
-            module = KINDS[kind].build(params, None)
+            assert build is not None
+            module = build(kind, params)
             module.start(ctx)
         except Exception as exc:
             pub.send(
@@ -214,8 +220,10 @@ class ProcessWorker(WorkerState):
         store: ObjectStore,
         clock: Clock,
         generation: int,
+        build: ModuleBuilder | None = None,
     ) -> None:
         super().__init__(spec, generation, clock)
+        self._build = build
         self.pid: int | None = None
         self.process: Any = None
         self._store = store
@@ -254,7 +262,16 @@ class ProcessWorker(WorkerState):
             ctx = mp.get_context("spawn")
             self.process = ctx.Process(
                 target=_child_main,
-                args=(self.spec, self._kind, self._params, self.generation, in_ep, out_ep, rt_priority),
+                args=(
+                    self.spec,
+                    self._kind,
+                    self._params,
+                    self.generation,
+                    in_ep,
+                    out_ep,
+                    rt_priority,
+                    self._build,
+                ),
                 name=f"bywire-{self.spec.name}#{self.generation}",
                 daemon=True,
             )
@@ -394,11 +411,14 @@ class ProcessWorker(WorkerState):
             proc.join(timeout=1.0)
 
 
-def process_worker_maker(lockstep: bool) -> Any:
-    """The `Runtime`'s factory for process workers (kind and parameters come from the entry)."""
+def process_worker_maker(lockstep: bool, build: ModuleBuilder) -> Any:
+    """The `Runtime`'s factory for process workers (kind and parameters come from the entry; `build`
+    makes the module in the child from them)."""
 
     def make(entry: Any, store: ObjectStore, clock: Clock, injector: Any) -> ProcessWorker:
         params = dict(entry.params)
-        return ProcessWorker(entry.spec, str(params.get("kind")), params, store, clock, entry.generation)
+        return ProcessWorker(
+            entry.spec, str(params.get("kind")), params, store, clock, entry.generation, build
+        )
 
     return make

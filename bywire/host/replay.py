@@ -1,7 +1,7 @@
 """Replay: feed a recording back through the host's modules on simulated time, and compare.
 
-In the spirit of openpilot's process replay (issue 3, part 4): a recording carries its scenario
-and host configuration (`/run/info`), so it can be replayed on its own. The modules that compute
+In the spirit of openpilot's process replay: a recording carries its host configuration and what its
+mission came from (`/run/info`), so it can be replayed on its own. The modules that compute
 rather than talk to hardware (kinds that need no host resources: odometry, the lead tracker, the
 longitudinal controller) are rebuilt, fresh, from the recorded configuration; every other topic of
 the recording is an input, published into a new store at its recorded time. Each replayed module is
@@ -26,17 +26,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from bywire.clock import SimClock
-from bywire.hil.scenario import parse_scenario
 from bywire.host.config import HostConfig, parse_host_config
+from bywire.host.inputs import HostInputs, lane_map_file
 from bywire.host.modules import KINDS, HostResources
 from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX
@@ -112,17 +110,37 @@ def _load(path: Path) -> tuple[RunInfo, dict[str, list[Any]]]:
     return info, by_topic
 
 
-def _rebuild(info: RunInfo, path: Path) -> tuple[HostConfig, Any]:
+def _rebuild(info: RunInfo, path: Path) -> HostConfig:
     try:
-        suffix = Path(info.scenario_source).suffix
-        data = tomllib.loads(info.scenario_text) if suffix == ".toml" else yaml.safe_load(info.scenario_text)
-        scenario = parse_scenario(data, f"{path}:{RUN_INFO}:scenario")
-        config = parse_host_config(json.loads(info.host_config_json), f"{path}:{RUN_INFO}:host_config")
-    except (ValueError, yaml.YAMLError, tomllib.TOMLDecodeError) as exc:
-        raise ReplayError(
-            f"{path}: the recorded scenario or host configuration does not load: {exc}"
-        ) from exc
-    return config, scenario
+        return parse_host_config(json.loads(info.host_config_json), f"{path}:{RUN_INFO}:host_config")
+    except ValueError as exc:
+        raise ReplayError(f"{path}: the recorded host configuration does not load: {exc}") from exc
+
+
+def car_run_inputs(info: RunInfo) -> HostInputs:
+    """The mission of a recording made by `bywire host run` on a car: its files, where they were. A
+    recording of a simulator's scenario needs the simulator's reader (`hil.host_inputs.recorded_inputs`)
+    for a module that reads the mission (the world model's lane map); the others replay without it."""
+    try:
+        args = json.loads(info.scenario_text) if info.scenario_text.startswith("{") else None
+    except ValueError:
+        args = None
+    if not isinstance(args, dict):
+
+        def not_here() -> Any:
+            raise ReplayError(
+                f"the recording's mission ({info.scenario_source}) is a simulator scenario: "
+                "replay it with `bywire log replay`, which rebuilds it"
+            )
+
+        return HostInputs(lane_map=not_here, source=info.scenario_source)
+    lane_map = args.get("lane_map")
+    return HostInputs(
+        rndf=args.get("rndf"),
+        mdf=args.get("mdf"),
+        lane_map=lane_map_file(lane_map) if lane_map else None,
+        source=info.scenario_source,
+    )
 
 
 def _check_chain(specs: list[ModuleSpec], replayed: set[str]) -> None:
@@ -174,11 +192,16 @@ class _Instance:
         self.module.start(self.ctx)
 
 
-def replay(path: Path, modules: list[str] | None = None) -> ReplayResult:
-    """Replay `path` through its computing modules (or the named ones) and compare their outputs."""
+def replay(
+    path: Path,
+    modules: list[str] | None = None,
+    inputs_for: Callable[[RunInfo], HostInputs] = car_run_inputs,
+) -> ReplayResult:
+    """Replay `path` through its computing modules (or the named ones) and compare their outputs.
+    `inputs_for` rebuilds the recorded mission (`car_run_inputs`, or the simulator's reader)."""
     path = Path(path)
     info, recorded = _load(path)
-    config, scenario = _rebuild(info, path)
+    config = _rebuild(info, path)
     specs = [m.spec for m in config.modules]
     pure = [m for m in config.modules if not KINDS[m.kind].needs_resources]
     if modules is not None:
@@ -216,7 +239,7 @@ def replay(path: Path, modules: list[str] | None = None) -> ReplayResult:
 
     store = ObjectStore(default_history=4096)
     clock = SimClock(events[0][0] if events else 0.0)
-    resources = HostResources(scenario, info.t_s)
+    resources = HostResources(inputs_for(info), info.t_s)
     builders = {
         s.name: (
             lambda kind=cfg[s.name].kind, params=cfg[s.name].params: KINDS[kind].build(params, resources)

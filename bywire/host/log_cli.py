@@ -71,8 +71,11 @@ def add_arguments(log_subparsers: Any) -> None:
     )
 
 
-def main(args: argparse.Namespace) -> int:
-    """Run one `bywire log` command; 0 on success, 2 on a recording or argument error (printed)."""
+def main(args: argparse.Namespace, inputs_for: Any = None) -> int:
+    """Run one `bywire log` command; 0 on success, 2 on a recording or argument error (printed).
+    `inputs_for`: how `replay` rebuilds a recording's mission (default: a car's, `host.replay`)."""
+    if args.log_command == "replay":
+        return _cmd_replay(args, inputs_for)
     command = COMMANDS.get(args.log_command)
     if command is None:
         known = ", ".join(COMMANDS)
@@ -322,11 +325,11 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_replay(args: argparse.Namespace) -> int:
-    from bywire.host.runtime.replay import ReplayError, replay
+def _cmd_replay(args: argparse.Namespace, inputs_for: Any = None) -> int:
+    from bywire.host.replay import ReplayError, car_run_inputs, replay
 
     try:
-        result = replay(args.file, args.module)
+        result = replay(args.file, args.module, inputs_for or car_run_inputs)
     except ReplayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -362,7 +365,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """A stand-alone parser (`python -m bywire.host.runtime.log_cli info FILE`), as `bywire log` wires it."""
+    """A stand-alone parser (`python -m bywire.host.log_cli info FILE`), as `bywire log` wires it."""
     parser = argparse.ArgumentParser(prog="bywire log", description="inspect an MCAP recording")
     add_arguments(parser.add_subparsers(dest="log_command", required=True, metavar="COMMAND"))
     return parser
