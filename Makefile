@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test bench lint typecheck clean safety-coverage mutation
+.PHONY: setup demo test bench lint typecheck imports clean safety-coverage mutation
 
 setup: $(VENV)/.installed
 
@@ -22,12 +22,19 @@ demo: setup
 test: setup
 	$(BIN)/ruff check .
 	$(MAKE) --no-print-directory typecheck
+	$(MAKE) --no-print-directory imports
 	$(MAKE) --no-print-directory safety-coverage
 	$(BIN)/pytest -m "not slow and not hil" -n 2 --dist loadfile $(SAFETY_SPEC_IGNORE)
 	$(BIN)/pytest -m "hil and not slow"
 
 # The safety authority's spec tests run once, under branch coverage (safety-coverage above).
 SAFETY_SPEC_IGNORE = $(addprefix --ignore=,$(shell $(BIN)/python tools/safety_coverage.py --list-tests 2>/dev/null))
+
+# The import rules of DESIGN section 2 (pyproject.toml [tool.importlinter]). The tool is installed
+# here if the venv predates it in the `test` extra.
+imports: setup
+	@$(BIN)/python -c 'import importlinter' 2>/dev/null || $(BIN)/python -m pip install --quiet 'import-linter>=2.1'
+	$(BIN)/lint-imports
 
 # mypy checks the package as Python imports it (pyproject.toml [tool.mypy]: strict on ecu and protocol).
 typecheck: setup
