@@ -23,8 +23,8 @@ from bywire.hil.world.pty_link import PtyLink
 from bywire.host.config import HostConfigError, load_host_config, parse_host_config
 from bywire.host.geo import LocalFrame
 from bywire.host.modules import KINDS
-from bywire.host.modules.fanout_bus import FanoutBus
-from bywire.host.modules.gcdc import PlatoonControl, PoseModule, V2vRxIo, V2vTxIo
+from bywire.host.modules.control.platoon import PlatoonControl
+from bywire.host.modules.estimation.pose import PoseModule
 from bywire.host.modules.gcdc_messages import (
     EGO_MOTION,
     GPS_NMEA,
@@ -40,6 +40,8 @@ from bywire.host.modules.gcdc_messages import (
     PoseReport,
     RoadsideItem,
 )
+from bywire.host.modules.io.fanout_bus import FanoutBus
+from bywire.host.modules.io.v2v import V2vRxIo, V2vTxIo
 from bywire.host.modules.messages import CONTROL, MISSION, ODOMETRY, MissionCommand, Odometry
 from bywire.host.platoon.record_map import track_from_nmea
 from bywire.host.world.lanemap import LaneMap

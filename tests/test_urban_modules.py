@@ -14,8 +14,11 @@ from module_harness import Harness
 from bywire.host.behaviour.situation import EStop
 from bywire.host.config import load_host_config
 from bywire.host.modules import KINDS
+from bywire.host.modules.control.urban import UrbanControl
+from bywire.host.modules.io.object_link import UrbanIo
 from bywire.host.modules.messages import CONTROL, ECU_STATUS, MISSION, EcuStatusReport, MissionCommand
-from bywire.host.modules.urban import UrbanControl, UrbanIo, UrbanLog, estop_of, extrapolate
+from bywire.host.modules.planning.urban_behaviour import estop_of, extrapolate
+from bywire.host.modules.urban_log import UrbanLog
 from bywire.host.modules.urban_messages import URBAN_OBJECTS, URBAN_PLAN, URBAN_POSE, UrbanPlan, UrbanPose
 from bywire.protocol.ecu_types import EcuState, RequestFlags
 from bywire.protocol.objects import EgoPoseRecord, MemObjectLink, ObjectList, ObjectRecord, encode

@@ -156,7 +156,7 @@ def run_host(
         gps = SerialReader(gps_port, clock.now)
     if sensor_bus is not None and config.uses("vehicle_sensors"):
         # One connection to vehicle CAN, two readers: the radar adapter and the odometry adapter.
-        from bywire.host.modules.fanout_bus import FanoutBus
+        from bywire.host.modules.io.fanout_bus import FanoutBus
 
         fanout = FanoutBus(sensor_bus)
         dbc = VehicleCodec()

@@ -4,13 +4,14 @@ Each kind has a default declaration (inputs, outputs, rate, deadline) and a buil
 fresh instance from the configuration's parameters and the host's resources (the ECU link, the
 sensor bus, the trace). Kinds that need no resources can run in a worker process of their own.
 
-Issue 4 adds the cooperative-driving kinds of `host.modules.gcdc` (GPS, pose, V2V receive and send,
-vehicle sensors, world model, platoon control) and their resources (the V2X link, the GPS serial line,
-the vehicle bus for odometry, the wall-clock mapping of V2V time stamps).
-
-Issue 5 adds the urban kinds of `host.modules.urban` (`urban_io`, `urban_behaviour`, `urban_control`) and
-their resources: the object link (`protocol.objects`), the road network built once from the mission's
-RNDF/MDF, and the log of the behaviour's states for the run's summary.
+The modules live by role, as a reader looks for them: `io/` the adapters that talk to hardware and
+links (they need the host's resources), `estimation/` where the car is and what is around it,
+`planning/` the driver's commands and the urban behaviour, `control/` what turns plans into requests.
+The kinds of the cooperative host (seed 003: GPS, pose, V2V receive and send, vehicle sensors, world
+model, platoon control) bring their resources (the V2X link, the GPS serial line, the vehicle bus for
+odometry, the wall-clock mapping of V2V time stamps); the kinds of the urban host (seed 000: `urban_io`,
+`urban_behaviour`, `urban_control`) theirs: the object link (`protocol.objects`), the road network built
+once from the mission's RNDF/MDF, and the log of the behaviour's states for the run's summary.
 """
 
 from __future__ import annotations
@@ -40,14 +41,14 @@ class HostResources:
     link: HostMaster | None = None
     sensor_bus: can.BusABC | None = None
     trace: TraceWriter | None = None
-    # Issue 4 (cooperative driving): the V2X link (`protocol.v2x.transport.open_v2x`), the GPS serial
+    # Cooperative driving (seed 003): the V2X link (`protocol.v2x.transport.open_v2x`), the GPS serial
     # line (anything with read() -> bytes), a second reader of vehicle CAN for the odometry frames, and
     # runtime time -> UNIX seconds (the V2V stamps' clock).
     v2x: Any = None
     gps: Any = None
     vehicle_bus: can.BusABC | None = None
     unix_time: Callable[[float], float] | None = None
-    # Issue 5 (urban): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
+    # Urban driving (seed 000): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
     objects: Any = None
     faults: HostFaultHooks = field(default_factory=NoFaults)
 
@@ -77,7 +78,7 @@ class HostResources:
 
     def urban_log(self) -> Any:
         if self._urban_log is None:
-            from bywire.host.modules.urban import UrbanLog
+            from bywire.host.modules.urban_log import UrbanLog
 
             self._urban_log = UrbanLog()
         return self._urban_log
@@ -140,21 +141,21 @@ class ModuleKind:
 
 
 def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.mission import ScriptMission
+    from bywire.host.modules.planning.mission import ScriptMission
 
     assert res is not None
     return ScriptMission(res.inputs.commands, res.t0_s)
 
 
 def _ecu_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.ecu_link import EcuRx
+    from bywire.host.modules.io.ecu_link import EcuRx
 
     assert res is not None and res.link is not None
     return EcuRx(res.link)
 
 
 def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.ecu_link import REQUEST_MAX_AGE_S, EcuTx
+    from bywire.host.modules.io.ecu_link import REQUEST_MAX_AGE_S, EcuTx
 
     assert res is not None and res.link is not None
     p = dict(params)
@@ -179,37 +180,37 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
 
 
 def _odometry(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.odometry import OdometryModule
+    from bywire.host.modules.estimation.odometry import OdometryModule
 
     return OdometryModule()
 
 
 def _radar(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.perception import RadarIo
+    from bywire.host.modules.io.radar import RadarIo
 
     return RadarIo(res.sensor_bus if res is not None else None)
 
 
 def _lead_tracker(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.perception import LeadTracker
+    from bywire.host.modules.estimation.lead_tracker import LeadTracker
 
     return LeadTracker()
 
 
 def _longitudinal(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.control import LongitudinalModule
+    from bywire.host.modules.control.longitudinal import LongitudinalModule
 
     return LongitudinalModule(dict(params))
 
 
 def _gps_serial(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import GpsSerialIo
+    from bywire.host.modules.io.gps import GpsSerialIo
 
     return GpsSerialIo(res.gps if res is not None else None)
 
 
 def _vehicle_sensors(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import VehicleSensorsIo
+    from bywire.host.modules.io.vehicle_sensors import VehicleSensorsIo
 
     return VehicleSensorsIo(res.vehicle_bus if res is not None else None)
 
@@ -221,7 +222,7 @@ def _station_id(params: Mapping[str, Any], res: HostResources | None) -> int:
 
 
 def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import V2vRxIo
+    from bywire.host.modules.io.v2v import V2vRxIo
     from bywire.protocol.v2x.receiver import ReceiverParams
 
     assert res is not None
@@ -230,21 +231,21 @@ def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
 
 
 def _v2v_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import V2vTxIo
+    from bywire.host.modules.io.v2v import V2vTxIo
 
     assert res is not None
     return V2vTxIo(res.v2x, res.unix_time_fn(), res.local_frame(), _station_id(params, res))
 
 
 def _pose(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import PoseModule
+    from bywire.host.modules.estimation.pose import PoseModule
 
     assert res is not None
     return PoseModule(res.local_frame())
 
 
 def _world_model(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import WorldModel
+    from bywire.host.modules.estimation.world_model import WorldModel
     from bywire.host.world.radar_fusion import FusionConfig
 
     assert res is not None
@@ -264,20 +265,20 @@ def _world_model(params: Mapping[str, Any], res: HostResources | None) -> Module
 
 
 def _platoon(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.gcdc import PlatoonControl
+    from bywire.host.modules.control.platoon import PlatoonControl
 
     return PlatoonControl(params)
 
 
 def _urban_io(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.urban import UrbanIo
+    from bywire.host.modules.io.object_link import UrbanIo
 
     return UrbanIo(res.objects if res is not None else None, res.urban_log() if res is not None else None)
 
 
 def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Module:
     from bywire.host.behaviour.behaviour import Behaviour
-    from bywire.host.modules.urban import UrbanBehaviour
+    from bywire.host.modules.planning.urban_behaviour import UrbanBehaviour
     from bywire.host.roadnet.route import MissionPlanner
 
     assert res is not None
@@ -286,7 +287,7 @@ def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Mo
 
 
 def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.urban import UrbanControl
+    from bywire.host.modules.control.urban import UrbanControl
 
     return UrbanControl(params, res.urban_log() if res is not None else None)
 
@@ -334,7 +335,7 @@ KINDS: dict[str, ModuleKind] = {
             doc="requests and heartbeat to the ECU",
             always_release=True,
         ),
-        # Issue 4: cooperative driving (host.modules.gcdc)
+        # Cooperative driving (seed 003)
         ModuleKind("gps_serial", (), (g.GPS_NMEA,), 0.02, 0.010, _gps_serial, doc="GPS/INS serial line"),
         ModuleKind(
             "vehicle_sensors",
@@ -377,7 +378,7 @@ KINDS: dict[str, ModuleKind] = {
             False,
             "seed 003 V-C/V-D platoon strategy",
         ),
-        # Issue 5: urban driving (host.modules.urban)
+        # Urban driving (seed 000)
         ModuleKind(
             "urban_io",
             (),

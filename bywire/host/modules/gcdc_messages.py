@@ -1,4 +1,4 @@
-"""Topics and objects of the cooperative-driving host (issue 4; seed 003 Sec. II): GPS, pose, V2V, world,
+"""Topics and objects of the cooperative-driving host (seed 003 Sec. II): GPS, pose, V2V, world,
 platoon. Same rules as `messages`: frozen dataclasses stamped `t_s` on the runtime clock, published every
 release (also when there is nothing new, saying so), times of reception kept apart (`rx_s`).
 

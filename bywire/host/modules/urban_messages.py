@@ -1,4 +1,5 @@
-"""Topics and objects of the urban host (issue 5): pose and object list in, the behaviour's plan out.
+"""Topics and objects of the urban host (seed 000 sections 8-11): pose and object list in, the
+behaviour's plan out.
 
 Every object is a frozen dataclass with `t_s` (the publishing module's release time on the runtime clock)
 and a `valid` flag, registered for MCAP recording and replay.
@@ -47,7 +48,8 @@ class UrbanObject:
 @register_type
 @dataclass(frozen=True)
 class UrbanObjects:
-    """The newest object list (perfect perception with optional noise, until the perception issue)."""
+    """The newest object list (the simulator's perfect perception with optional noise: the host has no
+    perception of its own yet)."""
 
     t_s: float
     valid: bool

@@ -1,8 +1,8 @@
 """Odometry: the distance driven, integrated from the ECU's measured speed at its reception times.
 
 The host's own notion of where it is along the path (seed 000 section 11: the vehicle "drives on
-rails"); the stopping controller measures the distance to the stop line with it. The GPS/INS pose
-server of issue 4 will replace it.
+rails"); the stopping controller measures the distance to the stop line with it. The cooperative host's
+GPS/INS pose server (`estimation/pose.py`) knows more; the spine keeps this one.
 """
 
 from __future__ import annotations

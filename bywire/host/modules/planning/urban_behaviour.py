@@ -1,0 +1,134 @@
+"""The behaviour of seed 000 sections 8-9 as a module of the urban host: `host.behaviour.Behaviour.step` on a
+`Situation` made of the newest pose (the rear axle, extrapolated to the release with its speed and yaw
+rate), the objects (matched to lanes by the behaviour's own `LaneIndex`) and the E-stop as the ECU
+reports it: ENGAGED is RUN, DISABLED is DISABLE, anything else PAUSE (before the ECU engages, and while
+it stops for a fault, the behaviour's clock stands still: nothing times out). Its planner is built from
+the mission's RNDF/MDF once per host (`HostResources.urban_network`, ~1.5 s on the DARPA sample network;
+before the runtime starts). A replan takes ~30 ms: the module's deadline (45 ms of its 50 ms period)
+tolerates it, and "slow" needs 8 misses in 10 releases. Pure: it replays exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from bywire.host.behaviour.behaviour import Behaviour
+from bywire.host.behaviour.situation import EgoState, EStop, Situation, TrackedObject, match_objects
+from bywire.host.modules.messages import (
+    ECU_STATUS,
+    EcuStatusReport,
+)
+from bywire.host.modules.urban_log import UrbanLog
+from bywire.host.modules.urban_messages import (
+    URBAN_OBJECTS,
+    URBAN_PLAN,
+    URBAN_POSE,
+    UrbanObject,
+    UrbanObjects,
+    UrbanPlan,
+    UrbanPose,
+)
+from bywire.host.runtime.module import Module, ModuleContext
+from bywire.protocol.ecu_types import EcuState
+
+
+def estop_of(status: EcuStatusReport | None) -> EStop:
+    """The E-stop as the behaviour should see it, from the ECU's state (see the module docstring)."""
+    if status is None or not status.valid:
+        return EStop.PAUSE
+    if status.state == int(EcuState.ENGAGED):
+        return EStop.RUN
+    if status.state == int(EcuState.DISABLED):
+        return EStop.DISABLE
+    return EStop.PAUSE
+
+
+def extrapolate(pose: UrbanPose, dt_s: float) -> tuple[float, float, float]:
+    """The rear axle `dt_s` after the pose (constant speed and yaw rate, exact arc)."""
+    if dt_s <= 0.0:
+        return pose.x_m, pose.y_m, pose.heading_rad
+    v, r, h = pose.speed_mps, pose.yaw_rate_radps, pose.heading_rad
+    if abs(r) < 1e-6:
+        return pose.x_m + v * dt_s * math.cos(h), pose.y_m + v * dt_s * math.sin(h), h
+    h1 = h + r * dt_s
+    rad = v / r
+    return pose.x_m + rad * (math.sin(h1) - math.sin(h)), pose.y_m - rad * (math.cos(h1) - math.cos(h)), h1
+
+
+class UrbanBehaviour(Module):
+    """`Behaviour.step` on the store's pose and objects (see the module docstring)."""
+
+    def __init__(self, behaviour: Behaviour, log: UrbanLog | None = None) -> None:
+        self.behaviour = behaviour
+        self.log = log or UrbanLog()
+        self._last_state = ""
+        self._matches: dict[str, tuple[tuple[float, float, float], TrackedObject]] = {}
+
+    def _matched(self, o: UrbanObject) -> TrackedObject:
+        """The object with its lane match (the world model's job, seed 000 Sec. 8); an object that has not
+        moved keeps its match (the same pose gives the same match: a cache, not a change of result)."""
+        key = (round(o.x_m, 3), round(o.y_m, 3), round(o.heading_rad, 4))
+        obj = TrackedObject(o.object_id, o.x_m, o.y_m, o.heading_rad, o.speed_mps, o.length_m, o.width_m)
+        hit = self._matches.get(o.object_id)
+        if hit is not None and hit[0] == key:
+            return replace(hit[1], speed_mps=o.speed_mps, length_m=o.length_m, width_m=o.width_m)
+        matched = match_objects(self.behaviour.ctx.lane_index, (obj,))[0]
+        self._matches[o.object_id] = (key, matched)
+        return matched
+
+    def step(self, ctx: ModuleContext) -> None:
+        now = ctx.now_s
+        pose: UrbanPose | None = ctx.latest(URBAN_POSE)
+        objs: UrbanObjects | None = ctx.latest(URBAN_OBJECTS)
+        status: EcuStatusReport | None = ctx.latest(ECU_STATUS)
+        if pose is None or not pose.valid:
+            ctx.publish(URBAN_PLAN, _hold_plan(now, "no pose yet"))
+            return
+        x, y, h = extrapolate(pose, now - pose.t_s)
+        objects = tuple(self._matched(o) for o in (objs.objects if objs is not None and objs.valid else ()))
+        sit = Situation(
+            t_s=now,
+            ego=EgoState(x, y, math.atan2(math.sin(h), math.cos(h)), pose.speed_mps),
+            objects=objects,
+            estop=estop_of(status),
+        )
+        cmd = self.behaviour.step(sit)
+        if cmd.state != self._last_state:
+            self._last_state = cmd.state
+            self.log.states.append((now, cmd.state))
+        if cmd.fault:
+            self.log.faults.append((now, cmd.fault))
+        self.log.checkpoints_reached = tuple(cmd.checkpoints_reached)
+        stub = cmd.stub
+        ctx.publish(
+            URBAN_PLAN,
+            UrbanPlan(
+                t_s=now,
+                valid=True,
+                state=cmd.state,
+                direction=int(stub.direction),
+                desired_speed_mps=float(cmd.desired_speed_mps),
+                stop_point_s_m=math.nan if cmd.stop_point_s_m is None else float(cmd.stop_point_s_m),
+                ego_s_m=float(cmd.ego_s_m),
+                lead_id="" if cmd.lead is None else cmd.lead.object_id,
+                lead_gap_m=math.nan if cmd.lead is None else float(cmd.lead.gap_m),
+                lead_speed_mps=math.nan if cmd.lead is None else float(cmd.lead.speed_mps),
+                paused=bool(cmd.paused),
+                next_checkpoint=int(cmd.next_checkpoint),
+                checkpoints_reached=tuple(int(c) for c in cmd.checkpoints_reached),
+                fault=cmd.fault or "",
+                reason=cmd.reason,
+                requests=tuple(f"{r.kind.value}: {r.detail}" for r in cmd.requests),
+                stub_x_m=tuple(float(v) for v in stub.x_m),
+                stub_y_m=tuple(float(v) for v in stub.y_m),
+                stub_heading_rad=tuple(float(v) for v in stub.heading_rad),
+                stub_curvature_1pm=tuple(float(v) for v in stub.curvature_1pm),
+                stub_s_m=tuple(float(v) for v in stub.s_m),
+            ),
+        )
+
+
+def _hold_plan(now: float, why: str) -> UrbanPlan:
+    return UrbanPlan(now, False, "", 1, 0.0, math.nan, 0.0, "", math.nan, math.nan, False, 0, (), "", why,
+                     (), (), (), (), (), ())  # fmt: skip
