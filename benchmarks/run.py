@@ -3,7 +3,7 @@
     python benchmarks/run.py [--quick] [--json FILE] [--with-hil SECONDS]
 
 `sil_spine` (not with --quick) runs every spine scenario whole in SIL and reports the slowest
-against issue 2's 20x target.
+against the SIL target of 20x real time.
 
 Each benchmark prints median / p99 / max and its ratio to a baseline measured right beside it,
 because these machines are shared and noisy: an absolute figure from another day means little,
@@ -153,7 +153,7 @@ def bench_sil(seconds: float) -> dict[str, Any]:
     }
 
 
-# The issue 2 contract's scenarios and the demo: the SIL speed target is about all of them.
+# The spine contract's scenarios and the demo: the SIL speed target is about all of them.
 SPINE_SCENARIOS = (*CONTRACT_SCENARIOS, "demo")
 
 

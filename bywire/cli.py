@@ -69,7 +69,7 @@ COMMANDS: tuple[Command, ...] = (
     Command("bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "benchmarks.ecu"),
     Command(
         "bench roadnet",
-        "RNDF/MDF parse, graph and mission route on NQE and VAIL (issue 5)",
+        "RNDF/MDF parse, graph and mission route on NQE and VAIL (seed 000 section 8)",
         "benchmarks.roadnet",
     ),
     Command(
@@ -79,24 +79,26 @@ COMMANDS: tuple[Command, ...] = (
     ),
     Command(
         "bench platoon",
-        "the follow-control QP and the 10-vehicle platoon step, vs. cvxpy (issue 4)",
+        "the follow-control QP and the 10-vehicle platoon step, vs. cvxpy (seed 003 section V)",
         "benchmarks.platoon",
     ),
     Command(
-        "bench v2x", "V2X codec and hardened receiver per message, vs. struct (issue 4)", "benchmarks.v2x"
+        "bench v2x",
+        "V2X codec and hardened receiver per message, vs. struct (seed 003 section III)",
+        "benchmarks.v2x",
     ),
     Command(
         "bench world",
-        "world model: lane-map match, vehicle prediction, pose filter (issue 4)",
+        "world model: lane-map match, vehicle prediction, pose filter (seed 003 section IV)",
         "benchmarks.world",
     ),
     Command(
         "bench urban",
-        "moving-traffic check, intersection precedence, lateral controller, HSM step (issue 5)",
+        "moving-traffic check, intersection precedence, lateral controller, HSM step (seed 000)",
         "benchmarks.urban",
     ),
     Command("log", "recordings (MCAP): info, plot, replay", "bywire.cli", "log"),
-    Command("platoon", "platoon tools (issue 4)", metavar="COMMAND"),
+    Command("platoon", "platoon tools (cooperative driving, seed 003)", metavar="COMMAND"),
     Command(
         "platoon string-stability",
         "string stability of a recorded platoon (OpenACC or CARMA CSV): worst spectral ratio",
@@ -107,27 +109,29 @@ COMMANDS: tuple[Command, ...] = (
         "a lane map (JSON) from an NMEA log of a drive along the lane",
         "bywire.host.platoon.record_map",
     ),
-    Command("rndf", "road network files (issue 5)", metavar="COMMAND"),
+    Command("rndf", "road network files (RNDF/MDF, seed 000 section 8)", metavar="COMMAND"),
     Command(
         "rndf check",
         "parse RNDF/MDF files; each error as file:line: what was expected",
         "bywire.host.roadnet.roadnet_cli",
         "rndf_check",
     ),
-    Command("mission", "missions (issue 5)", metavar="COMMAND"),
+    Command("mission", "missions (MDF, seed 000 section 8)", metavar="COMMAND"),
     Command(
         "mission plan",
         "the fastest route through an MDF's checkpoints, in order",
         "bywire.host.roadnet.roadnet_cli",
         "mission_plan",
     ),
-    Command("behaviour", "the urban behaviour (issue 5)", metavar="COMMAND"),
+    Command("behaviour", "the urban behaviour (seed 000 section 8)", metavar="COMMAND"),
     Command(
         "behaviour diagram",
         "the hierarchical state machine, generated from the code (Mermaid or PNG)",
         "bywire.host.behaviour.diagram",
     ),
-    Command("v2x", "V2X link tools: meter, echo, ping, fuzz (issue 4)", "bywire.protocol.v2x.v2x_cli"),
+    Command(
+        "v2x", "V2X link tools: meter, echo, ping, fuzz (seed 003 section III)", "bywire.protocol.v2x.v2x_cli"
+    ),
     Command("bus", "virtual CAN buses"),
     Command(
         "bus serve",

@@ -4,7 +4,7 @@ One cycle (`EcuApp.step`), every millisecond on an absolute deadline:
 1. drain vehicle CAN through the E2E monitor (CRC, alive counter, age) and the host link through the
    CANopen node (request RPDO, host heartbeat, SDO, NMT);
 2. reduce what was received to the core's inputs: freshness from the DBC cycle times, corruption
-   from error streaks, the host's heartbeat from our consumer (canopen has none: issue #543);
+   from error streaks, the host's heartbeat from our consumer (canopen has none: canopen-python/canopen#543);
 3. `core_step`, the pure safety state machine + cascaded acceleration controller;
 4. send `DBW_Command` every 10 ms, the CANopen heartbeat and the status TPDOs on their timers, and
    an EMCY when a new fault appears.

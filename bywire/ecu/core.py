@@ -35,7 +35,7 @@ d, and a margin for the integrator to correct the maps. So every stop holds with
 the car does; if it is still rolling then (a brake weaker than calibrated, a slope steeper than
 the integrator covers) the hold pressure takes over.
 
-Gears (`ecu.gear`, issue 5: backing out of a parking spot). ENGAGED drives only while the gear the
+Gears (`ecu.gear`, for urban driving: backing out of a parking spot). ENGAGED drives only while the gear the
 host wants (RequestFlags.REVERSE), the gear the ECU asks the gateway for (`DBW_Command.GearRequest`)
 and the gear the gateway reports engaged (`GW_Motion.GearEngaged`) agree. Otherwise it shifts: it
 brakes at SHIFT_DECEL_MPS2 without throttle to standstill (every wheel below

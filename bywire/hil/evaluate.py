@@ -1,10 +1,10 @@
 """Scenario evaluation: metrics from the plant's and the host's traces, and the scenario's checks.
 
-The metric names are a contract (issue 2): `accel_rms_error_mps2`, `fault_detect_ms`,
-`brake_onset_ms`, `stop_distance_m`, `standstill_held`, `final_state`, `real_time_factor`, plus a
-few more that the shipped scenarios judge (`settle_time_s`, `overshoot_mps2`, `collisions`, ...).
-Everything is computed from ground truth (the FMU's state in the plant trace), never from what the
-ECU believes, so a wrong belief cannot pass its own test.
+The metric names are a contract (tests, benchmarks and reports read them): `accel_rms_error_mps2`,
+`fault_detect_ms`, `brake_onset_ms`, `stop_distance_m`, `standstill_held`, `final_state`,
+`real_time_factor`, plus a few more that the shipped scenarios judge (`settle_time_s`, `overshoot_mps2`,
+`collisions`, ...). Everything is computed from ground truth (the FMU's state in the plant trace), never
+from what the ECU believes, so a wrong belief cannot pass its own test.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from bywire.protocol.ecu_types import EcuState, Fault
 STANDSTILL_MPS = 0.05  # below this the car counts as stopped (wheel-speed sensor resolution ~0.03 m/s)
 HOLD_CREEP_MPS = 0.1  # a held car may not creep faster than this
 BRAKE_ONSET_BAR = 1.0  # measured brake pressure that counts as "brakes applied"
-TRACK_DELAY_S = 1.0  # tracking is judged from 1 s after each step of the request (issue 2)
+TRACK_DELAY_S = 1.0  # tracking is judged from 1 s after each step of the request
 SETTLE_BAND_MPS2 = 0.1
 STOP_STATES = (EcuState.PAUSED, EcuState.SAFE_STOP, EcuState.DISABLED, EcuState.MANUAL)
 STOP_STATE_NAMES = frozenset(s.name for s in STOP_STATES)
@@ -148,7 +148,7 @@ def rearm_metrics(
 
 
 def supervisor_metrics(scenario: Scenario, runtime: dict[str, Any]) -> dict[str, Any]:
-    """What the host's supervisor made of the scenario's module faults (issue 3 contract:
+    """What the host's supervisor made of the scenario's module faults (a contract:
     `detect_ms`, `action`): the first detection at or after the first module fault.
 
     `detect_ms` is the supervisor's own detection time, from the failure's onset as it can know it
@@ -202,9 +202,10 @@ def evaluate(
     mode: str = "sil",
     traffic: dict[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
-    """The JSON document of a run: scenario, verdict, checks and metrics (issue 2 contract).
+    """The JSON document of a run: scenario, verdict, checks and metrics (a contract).
     `mode` picks each check's limit (a check may allow more in HIL, see `Check.hil_limit`).
-    A scenario with a world (issue 4) adds the platoon metrics of `hil.platoon_eval` from `traffic`."""
+    A scenario with a world (cooperative driving) adds the platoon metrics of `hil.platoon_eval` from
+    `traffic`."""
     metrics: dict[str, Any] = {}
     if plant["t_s"].size == 0:
         metrics["final_state"] = "NO_DATA"

@@ -46,7 +46,7 @@ def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -
     p.add_argument(
         "--leader-profile",
         type=Path,
-        help="OpenACC or CARMA CSV: the first car's speed drives the scenario's replay leader (issue 4)",
+        help="OpenACC or CARMA CSV: the first car's speed drives the scenario's replay leader",
     )
     p.add_argument("--quiet", action="store_true", help="no progress output")
 

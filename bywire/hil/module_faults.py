@@ -1,4 +1,4 @@
-"""Fault injection into host modules, for the supervisor's scenarios (issue 3, part 3).
+"""Fault injection into host modules, for the scenarios of the runtime's supervisor (DESIGN section 4).
 
 Each fault is what the supervisor must catch in the wild, made on purpose, inside the module's own
 release so that nothing but the data flow and timing gives it away:

@@ -7,17 +7,17 @@ and turns FMU outputs into the gateway's report frames with sensor noise. Scenar
 injected here: E-stop modes, driver brake and steering, grade and wind, and lost, corrupt, repeated
 or delayed frames. The same class runs in the HIL plant process (wall clock) and in SIL (lockstep).
 
-The world around the car (issue 4, `hil.world`): roads, traffic, the radar that sees it, the GPS receiver
-and the V2V radio, stepped at the plant's events. A scenario's `world:` section builds it; the spine's
-`host.lead` becomes a scripted car on a one-lane road (`hil.world.sim.lead_world`), with the spine's radar.
-`PlantLinks` carries where the world's V2V datagrams and GPS bytes go (SIL: in-process; HIL: loopback UDP
-broadcast and a pty) and the traffic trace.
+The world around the car (`hil.world`, cooperative driving): roads, traffic, the radar that sees it, the
+GPS receiver and the V2V radio, stepped at the plant's events. A scenario's `world:` section builds it;
+the spine's `host.lead` becomes a scripted car on a one-lane road (`hil.world.sim.lead_world`), with the
+spine's radar. `PlantLinks` carries where the world's V2V datagrams and GPS bytes go (SIL: in-process;
+HIL: loopback UDP broadcast and a pty) and the traffic trace.
 
-Issue 5: a scenario's `urban:` section adds `hil.world.urban.UrbanWorldSim` (an RNDF/MDF network with
+Urban driving: a scenario's `urban:` section adds `hil.world.urban.UrbanWorldSim` (an RNDF/MDF network with
 rule-following traffic), stepped at the same events (~100 Hz); its object list and our pose go to the host
 through `PlantLinks.objects_send` (`protocol.objects`).
 
-The gear (issue 5, reversing out of parking spots): the gateway owns the selector. It takes
+The gear (for reversing out of parking spots): the gateway owns the selector. It takes
 `DBW_Command.GearRequest` only from a fresh, engaged command, and shifts only at standstill (|v| below
 `SHIFT_STANDSTILL_SPEED_MPS`) with at least `SHIFT_BRAKE_MIN_BAR` applied; the new gear is engaged
 `SHIFT_DELAY_S` later (a shift that loses either condition on the way is abandoned), and refused
@@ -83,7 +83,7 @@ class PlantLinks:
     traffic_trace: TraceWriter | None = None
     unix_time: Callable[[float], float] | None = None  # scenario time -> UNIX s (V2V generation stamps)
     replay_profile: Sequence[tuple[float, float]] = field(default_factory=tuple)
-    objects_send: Callable[[bytes], Any] | None = None  # issue 5: the urban world's object-list datagrams
+    objects_send: Callable[[bytes], Any] | None = None  # the urban world's object-list datagrams
 
 
 @dataclass

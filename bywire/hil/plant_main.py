@@ -1,9 +1,9 @@
 """`bywire hil plant`: the plant as its own real-time process on the vehicle bus (1 kHz, wall clock).
 
-With a world (issue 4): `--v2x URL` broadcasts the simulated vehicles' and road side's datagrams,
+With a world (cooperative driving): `--v2x URL` broadcasts the simulated vehicles' and road side's datagrams,
 `--gps-fd N` writes the GPS receiver's NMEA to an inherited pty master, `--traffic-trace` and
 `--world-summary` keep the per-vehicle trace and the bookkeeping, `--leader-profile CSV` replays a real
-leader (see `hil.world.replay`). With an urban world (issue 5): `--objects URL` sends our pose and the
+leader (see `hil.world.replay`). With an urban world: `--objects URL` sends our pose and the
 object list (protocol/objects.py), `--urban-summary` keeps the world's bookkeeping. V2V generation times
 are the wall clock's (UNIX) at scenario time t.
 """
@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--world-summary", type=Path, help="write the world's bookkeeping (gaps, TTC, collisions) as JSON"
     )
     p.add_argument("--leader-profile", type=Path, help="OpenACC or CARMA CSV: the replay vehicle's speed")
-    p.add_argument("--objects", help="object link of an urban world (issue 5), e.g. udp://127.0.0.1:47200")
+    p.add_argument("--objects", help="object link of an urban world, e.g. udp://127.0.0.1:47200")
     p.add_argument("--urban-summary", type=Path, help="write the urban world's bookkeeping as JSON")
     p.add_argument(
         "--rt-priority",

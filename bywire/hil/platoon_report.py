@@ -1,4 +1,4 @@
-"""Platoon report figures (issue 4): seed 003 Fig. 6 and Fig. 7 for a simulated heat, and our string
+"""Platoon report figures: seed 003 Fig. 6 and Fig. 7 for a simulated heat, and our string
 stability beside the real strings'.
 
 - `<name>_path_time.png`: position along the road over time of every vehicle, coloured by speed (seed 003

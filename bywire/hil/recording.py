@@ -1,4 +1,4 @@
-"""Recording a run: every bus frame, and with MCAP also every topic of the host (issue 3, part 4).
+"""Recording a run: every bus frame, and with MCAP also every topic of the host runtime.
 
 By the file's suffix: `.mcap` records into MCAP (`host.runtime.mcap_log`: Foxglove opens it, and
 `bywire log info|plot|replay` read it); any other suffix uses python-can's loggers (.log, .asc,

@@ -1,6 +1,6 @@
 """Run reports: PNG plots of a run and its JSON verdict.
 
-One figure per run with the signals an engineer looks at first (issue 2): speed, requested vs.
+One figure per run with the signals an engineer looks at first: speed, requested vs.
 measured acceleration, throttle pedal and brake pressure, ECU state and faults over time, and the gap
 to the lead car when there is one. matplotlib runs on its Agg backend: no display needed.
 """

@@ -6,14 +6,14 @@ start instant t0 on CLOCK_MONOTONIC, which the runner sends once all are ready. 
 that concern the host process itself (SIGSTOP freeze, SIGKILL) are applied here at t0 + at_s.
 Every process writes its own trace; the runner records every frame on the buses it can see.
 
-A scenario with a world (issue 4) also gets its non-CAN links, all on this machine: the V2X radio as UDP
-broadcast on loopback (`v2x://127.255.255.255:PORT`, a free port per run), and the GPS receiver's serial
-line as a pseudo-terminal pair the runner creates and holds for the run: the plant inherits the master
-(`--gps-fd`), the host opens the slave like a real port (`--gps-serial`). The plant writes the world's
-per-vehicle trace (`traffic.csv`) and its bookkeeping (`world.json`); the host adds its V2V counters to
-its summary (`gcdc`).
+A scenario with a world (cooperative driving) also gets its non-CAN links, all on this machine: the V2X
+radio as UDP broadcast on loopback (`v2x://127.255.255.255:PORT`, a free port per run), and the GPS
+receiver's serial line as a pseudo-terminal pair the runner creates and holds for the run: the plant
+inherits the master (`--gps-fd`), the host opens the slave like a real port (`--gps-serial`). The plant
+writes the world's per-vehicle trace (`traffic.csv`) and its bookkeeping (`world.json`); the host adds its
+V2V counters to its summary (`gcdc`).
 
-An urban scenario (issue 5) gets its object link as loopback UDP (`udp://127.0.0.1:PORT`, a free port per
+An urban scenario gets its object link as loopback UDP (`udp://127.0.0.1:PORT`, a free port per
 run): the plant sends our pose and the object list, the host's `urban_io` reads them; the plant writes its
 bookkeeping to `urban.json`, the host its state history into its summary (`urban`).
 """

@@ -43,7 +43,7 @@ FAULT_KINDS = (
     "engage_press",  # the mission lets go of ENGAGE for a moment and asks anew (a new engage wish)
     "rearm",  # the host sends a REARM pulse
     "loop_stall",  # the ECU's loop stops for duration_s (SIL: not stepped; HIL: SIGSTOP .. SIGCONT)
-    # Host runtime faults (issue 3), injected into one module of the host: module = NAME
+    # Host runtime faults (for the runtime's supervisor), injected into one module of the host: module = NAME
     "module_exception",  # the module's next step raises
     "module_hang",  # the module's next step never returns (an endless loop)
     "module_deadlock",  # the module's next step blocks forever on a lock
@@ -139,8 +139,8 @@ class Scenario:
     seed: int
     hil_timeout_s: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
-    world: WorldSpec | None = None  # issue 4: roads, traffic, radar, GPS, V2V (hil.world.spec)
-    urban: UrbanSpec | None = None  # issue 5: RNDF/MDF network, traffic, object list (hil.world.urban_spec)
+    world: WorldSpec | None = None  # cooperative driving: roads, traffic, radar, GPS, V2V (hil.world.spec)
+    urban: UrbanSpec | None = None  # urban: RNDF/MDF network, traffic, object list (hil.world.urban_spec)
 
     def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
         return tuple(f for f in self.faults if f.kind in kinds)
@@ -359,8 +359,8 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     )
 
 
-# The scenarios issue 2's contract names, runnable by bare name: the tests run each, the benchmarks
-# time each.
+# The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run
+# each, the benchmarks time each.
 CONTRACT_SCENARIOS = (
     "accel_steps",
     "grade",

@@ -5,12 +5,12 @@ The same `Plant`, `EcuApp` and `HostAgent` classes as the three HIL processes, o
 order: plant (sensors out), ECU (one 1 kHz cycle), host (every 20 ms). No threads, no wall clock:
 two runs of one scenario give identical traces.
 
-A scenario with a world (issue 4) also gets the links the world speaks to the host, in process and
+A scenario with a world (cooperative driving) also gets the links the world speaks to the host, in process and
 deterministic: the V2X radio as an in-process broadcast domain (`mem://sil-v2x-TAG`, receptions stamped
 with the scenario's epoch + simulated time), the GPS receiver's serial line as a `BytePipe`, and a
 second host reader of vehicle CAN for the odometry frames (wheel speeds, yaw rate).
 
-An urban scenario (issue 5) gets the object link in process (`protocol.objects.MemObjectLink`): the plant's
+An urban scenario gets the object link in process (`protocol.objects.MemObjectLink`): the plant's
 urban world sends our pose and the object list, the host's `urban_io` reads them, in order.
 """
 

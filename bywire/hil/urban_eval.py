@@ -1,4 +1,4 @@
-"""Metrics of an urban run (issue 5), all from the plant's ground truth (`hil.world.urban` bookkeeping),
+"""Metrics of an urban run, all from the plant's ground truth (`hil.world.urban` bookkeeping),
 judged against the DARPA Urban Challenge rules the behaviour claims to follow.
 
 - `checkpoints_reached`: how many of the MDF's checkpoints our car passed, in the MDF's order (front

@@ -1,4 +1,4 @@
-"""Plots of an urban run (issue 5): the trajectory over the road network, and the behaviour's state history.
+"""Plots of an urban run: the trajectory over the road network, and the behaviour's state history.
 
 `NAME_urban.png`: every lane and exit of the RNDF (grey), stop lines (red bars), the MDF's checkpoints
 (blue, numbered in mission order; green once reached), our car's track coloured by time, every traffic

@@ -1,10 +1,10 @@
-"""The host agent: the spine's host as modules on the runtime (issue 3), one store, one clock.
+"""The host agent: the spine's host as modules on the runtime, one store, one clock.
 
 The agent builds the runtime from a host configuration (`host.config`): the driver's commands,
 the ECU link (status in, requests and heartbeat out), odometry, radar and lead tracker, and the
-longitudinal override controller of seed 000 section 11.2 (or, in the `gcdc` configuration of issue 4,
+longitudinal override controller of seed 000 section 11.2 (or, in the `gcdc` configuration of seed 003,
 GPS, pose, V2V, world model and platoon control over the V2X link and the GPS line it is given; in the
-`urban` configuration of issue 5, the behaviour and lateral/longitudinal control on the object link), each
+`urban` configuration of seed 000, the behaviour and lateral/longitudinal control on the object link), each
 with its rate, deadline and failure policy. In SIL the driver calls `step(now_s)` every simulated
 millisecond and the runtime runs in lockstep; as a process (`bywire host run`) the runtime ticks on
 the wall clock.
@@ -148,7 +148,7 @@ class HostAgent:
         return self.runtime.summary()
 
     def gcdc_summary(self) -> dict[str, Any]:
-        """What the cooperative modules counted (issue 4): V2V received / accepted / rejected by reason,
+        """What the cooperative modules counted: V2V received / accepted / rejected by reason,
         our CAMs sent, the pose server's dropped sentences and frozen fixes. Empty without them."""
         from bywire.host.modules.gcdc_messages import POSE, V2V_RECEIVED, V2V_SENT
 
@@ -168,7 +168,7 @@ class HostAgent:
         return out
 
     def urban_summary(self) -> dict[str, Any]:
-        """The urban modules' log (issue 5): the behaviour's state history, faults, the checkpoints it
+        """The urban modules' log: the behaviour's state history, faults, the checkpoints it
         counted, backward legs held. Empty without them."""
         if not self.config.uses("urban_io", "urban_behaviour", "urban_control"):
             return {}

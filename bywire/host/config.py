@@ -52,8 +52,8 @@ class HostConfig:
     live_view_port: int | None
     modules: tuple[ModuleConfig, ...]
     data: dict[str, Any] = field(default_factory=dict)  # as parsed (after `extends`): for recordings
-    v2x: str | None = None  # issue 4: the V2X link (v2x://... or mem://...)
-    gps_serial: str | None = None  # issue 4: the GPS/INS serial port
+    v2x: str | None = None  # cooperative driving: the V2X link (v2x://... or mem://...)
+    gps_serial: str | None = None  # cooperative driving: the GPS/INS serial port
 
     def uses(self, *kinds: str) -> bool:
         return any(m.kind in kinds for m in self.modules)

@@ -1,4 +1,4 @@
-"""`bywire log info|plot FILE`: inspecting an MCAP recording from the command line (issue 3).
+"""`bywire log info|plot FILE`: inspecting an MCAP recording from the command line.
 
 `info` lists the topics with their schema, message count, first/last time, mean rate and gaps, and
 says whether the file was closed cleanly or is a crash-truncated recording. `plot` draws chosen

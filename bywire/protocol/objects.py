@@ -1,8 +1,8 @@
-"""The object-list datagram: the ego pose and the tracked objects, plant -> host (issue 5).
+"""The object-list datagram: the ego pose and the tracked objects, plant -> host (urban driving).
 
-A stand-in until the perception issue lands: the plant's urban world sends ground truth (optionally
-noisy) the way a tracker and an RTK GPS/INS would, and the host's `urban_io` module reads it. One
-datagram per cycle, little-endian, fixed layout:
+A stand-in while the host has no perception of its own (seed 000 sections 4-6 are not built): the
+plant's urban world sends ground truth (optionally noisy) the way a tracker and an RTK GPS/INS would,
+and the host's `urban_io` module reads it. One datagram per cycle, little-endian, fixed layout:
 
     header  "<4sBBHdI"   magic b"BWOL", version 1, flags (bit 0: pose valid; bit 1: the object list is
                           included, else a pose-only update), object count n (<= 256),

@@ -3,8 +3,8 @@
 Here a road from a scenario's `RoadSpec`: straight, or a constant-curvature arc (gently curved,
 |radius| >= 200 m), `lanes` lanes side by side, lane 0 on the right, lane k offset k lane widths to the
 left. The road starts at the origin of the local plane (`host.geo.LocalFrame` at the road's geodetic
-origin), so the plant's GPS emulator and the host's lane map share one frame. The same `Lane` type will
-carry the urban roads of issue 5 (any `Path`).
+origin), so the plant's GPS emulator and the host's lane map share one frame. The urban world
+(`hil.world.urban`) uses the same `Path` type directly, as the edges of its `RoadGraph`.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from bywire.hil.world.v2v import V2vBroadcaster
 from bywire.host.trace import TraceWriter
 from bywire.host.world.nmea_emulator import EmulatorConfig, Outage, ReceiverEmulator, TruthState
 
-LEGACY_RADAR_RANGE_M = 120.0  # the spine's radar (hil.plant before issue 4)
+LEGACY_RADAR_RANGE_M = 120.0  # the spine's radar (hil.plant before it had a world)
 EGO_LENGTH_M = 4.77
 
 

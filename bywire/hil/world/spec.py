@@ -1,4 +1,4 @@
-"""The scenario's `world:` section: road, ego placement, traffic, sensors, V2V and road side (issue 4).
+"""The scenario's `world:` section: road, ego placement, traffic, sensors, V2V and road side (seed 003).
 
 Parsed as strictly as the rest of a scenario (`hil.scenario`): an unknown key, a wrong type or an
 impossible value is refused with the file and the path of the field

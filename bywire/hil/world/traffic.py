@@ -9,7 +9,7 @@ closing, and a collision each time a gap reaches 0 (counted once per contact, as
 Our car is the FMU's pose placed on the road: the FMU starts at its own origin heading along +x; the
 world maps that origin onto the start lane at `ego.s_m` with the lane's heading (a rigid transform) and
 locates the car on the nearest lane each step (arc length and lateral offset by projection). Without
-lateral control (the host does not steer in issue 4) a curved road is only good for the traffic; our car
+lateral control (the cooperative host does not steer) a curved road is only good for the traffic; our car
 keeps its heading.
 
 Traffic dynamics per car: ``s' = v``, ``v' = a``, ``lag a' + a = u`` (exact first-order hold over a

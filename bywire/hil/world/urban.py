@@ -1,4 +1,4 @@
-"""The urban world (issue 5): an RNDF/MDF road network, our car placed on it, traffic driving its lanes
+"""The urban world (seed 000): an RNDF/MDF road network, our car placed on it, traffic driving its lanes
 by simple rules, and the ground-truth bookkeeping the urban scenarios are judged by.
 
 Stepped by the plant at its events (~100 Hz, never every millisecond; `UrbanWorld.step`). Every lane and

@@ -1,4 +1,4 @@
-"""The scenario's `urban:` section (issue 5): an RNDF/MDF road network, where our car starts, the traffic
+"""The scenario's `urban:` section (seed 000): an RNDF/MDF road network, where our car starts, the traffic
 on the network's lanes and the perfect-perception object list the host receives.
 
 Parsed as strictly as the rest of a scenario (`hil.scenario`): an unknown key, a wrong type or an

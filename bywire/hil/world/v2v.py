@@ -7,7 +7,7 @@ loopback in HIL, the in-process `mem://` domain in SIL). Deterministic for a see
 Per communicating vehicle (`V2vSenderSpec`), at `rate_hz` on epochs ``k / rate + phase`` (the phase spread
 by station id, as real senders are not synchronised): its state at the epoch, stamped with the epoch's
 wall time (`unix_time`, GNSS time in the GCDC), position with white noise per axis (`position_noise_m`),
-speed with `speed_noise_mps`, delivered `latency_s` later. The bad data of the issue:
+speed with `speed_noise_mps`, delivered `latency_s` later. The bad data of seed 003 (Sec. IV-B, VI):
 
 - frozen (a GPS outage under a bridge, seed 003 Fig. 6, Sec. VI): the broadcast position stays where it
   was when the interval began; speed, heading and acceleration go on (they come from the car's odometry

@@ -187,7 +187,7 @@ MAX_MICROSTEPS: Final = 16  # AnnieWAY code: > 16 transitions in one cycle = "er
 CURVE_LATERAL_ACCEL_MPS2: Final = 2.0
 # Turns near full lock (ours): 2 m/s² lateral would allow 3.2 m/s on a 5 m radius, but the steering
 # (0.7 rad/s, 0.1 s lag: vehicle_models/passat) then turns in late, and the car saturates and runs wide
-# of a stop-line exit by up to 0.5 m; at 2 m/s it stays within ~0.2 m (issue 5). Curvatures from
+# of a stop-line exit by up to 0.5 m; at 2 m/s it stays within ~0.2 m. Curvatures from
 # 0.2 1/m (a 5 m radius, 94 % of the Passat's full lock) are driven at this speed at most; below it the
 # car tracks at the lateral-acceleration speed (NQE area A: 0.17 m at most); 0.15 1/m made NQE area
 # A's laps 10-15 % slower for 0.12 m.

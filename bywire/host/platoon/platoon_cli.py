@@ -1,4 +1,4 @@
-"""`bywire platoon string-stability CSV [--json FILE]` (issue 4; seed 003, Sec. V-D).
+"""`bywire platoon string-stability CSV [--json FILE]` (seed 003, Sec. V-D).
 
 Runs the string-stability estimator of bywire.host.platoon.string_stability on a recorded platoon
 (OpenACC ZalaZone / AstaZero, CARMA) and writes the contract JSON

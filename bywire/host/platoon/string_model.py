@@ -1,4 +1,4 @@
-"""Linearised string stability of the follow QP (issue 4; the design check behind seed 003 Sec. V-C/D).
+"""Linearised string stability of the follow QP (the design check behind seed 003 Sec. V-C/D).
 
 Away from its constraints the follow QP (`follow_qp.FollowQP`) is a linear map of its inputs. For a host
 at speed v behind a leader predicted with constant acceleration, its command is

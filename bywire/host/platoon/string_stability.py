@@ -1,4 +1,4 @@
-"""String-stability estimate of a recorded or simulated platoon (issue 4; seed 003, Sec. V-D).
+"""String-stability estimate of a recorded or simulated platoon (seed 003, Sec. V-D).
 
 Seed 003 Sec. V-D argues that, with enough slack in the lock on the leader, "platoon stability directly
 follows from the stability of the follow controller" (Sec. V-C) and gives no number for it. Deviation:

@@ -100,7 +100,7 @@ class GraphParams:
     # (path.drivable_connector); None keeps the least-energy connector everywhere. Default: the Passat
     # at full lock (seed 000 Sec. 11.1: l = 2.72 m, delta_max = 30 deg), tan(30 deg) / 2.72 m. The
     # least-energy curve of the sample mission's exit 11.1.4 -> 7.1.11 turns on 2.9 m; the car, on
-    # 4.7 m at most, ran 0.87 m wide of it (issue 5).
+    # 4.7 m at most, ran 0.87 m wide of it.
     exit_max_curvature_1pm: float | None = math.tan(math.radians(30.0)) / 2.72
 
 

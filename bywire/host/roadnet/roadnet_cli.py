@@ -1,4 +1,4 @@
-"""`bywire rndf check FILE...` and `bywire mission plan RNDF MDF` (issue 5; seed 000 sec. 8).
+"""`bywire rndf check FILE...` and `bywire mission plan RNDF MDF` (seed 000 sec. 8).
 
 ``rndf check``: every FILE is read as an RNDF or an MDF, told apart by its first keyword (``RNDF_name`` /
 ``MDF_name``); with ``--rndf`` the MDFs' checkpoints are also resolved in that RNDF.  Exit status 0 when

@@ -1,7 +1,7 @@
 """An optional live view of the store's topics in Foxglove, over the Foxglove WebSocket protocol.
 
-Issue 3: "a Foxglove WebSocket server (foxglove-sdk) publishing the topics while the host runs, off
-by default". Nothing starts unless a `LiveView` is constructed; then `store.add_tap(view.publish)`
+A Foxglove WebSocket server (foxglove-sdk) publishing the topics while the host runs, off by
+default. Nothing starts unless a `LiveView` is constructed; then `store.add_tap(view.publish)`
 shows every topic live (open `view.url` in Foxglove as a "Foxglove WebSocket" connection).
 
 Messages and schemas are exactly those of the MCAP recorder (`mcap_log.encode_object`,

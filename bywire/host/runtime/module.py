@@ -1,6 +1,6 @@
 """Host modules: what each one reads, writes, how often it runs, its deadline, and what to do when it fails.
 
-A module is the unit the scheduler runs and the supervisor watches (issue 3; seed 000 section 3:
+A module is the unit the scheduler runs and the supervisor watches (seed 000 section 3:
 "the software is organized in modules that communicate through the real-time database", seed 003
 section II-c). It declares its inputs and outputs by topic, so the runtime knows the data flow
 without reading the code: the supervisor restarts a failed module's dependants in dependency order,

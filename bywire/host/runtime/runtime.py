@@ -30,7 +30,7 @@ on the runtime clock, so the bounds hold in simulated time (SIL) and wall time (
 execution time is always measured on the wall (it is CPU cost, not simulated time).
 
 The last line of defence stays in the ECU: if the host as a whole stops, the ECU's heartbeat
-watchdog stops the car (issue 2), whatever happened to this supervisor.
+watchdog stops the car (DESIGN section 4), whatever happened to this supervisor.
 """
 
 from __future__ import annotations
