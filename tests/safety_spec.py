@@ -3,7 +3,7 @@
 Each mixin states one part of the spec (ecu/safety.py's and ecu/core.py's docstrings; DARPA Urban
 Challenge rules 3.4.2 for the E-stop) through `core_step` closed around the point-mass plant
 (tests/plant_model.py). A concrete test class combines the mixins and names a calibration in `CAL`
-(tests/test_safety.py: the packaged Passat calibration and two extreme valid ones, with every
+(tests/ecu/test_safety.py: the packaged Passat calibration and two extreme valid ones, with every
 limit at one end of its validated range). Durations are derived from the calibration
 (`stop_time_bound_s`), never fixed, so the same spec holds for a gentle and for an aggressive car.
 The control-quality checks that only an identified calibration can pass (deceleration accuracy,
@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 
 import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
+from hypothesis import strategies as st
 
 from bywire.ecu.accel_controller import brake_bar, coast_accel_mps2
 from bywire.ecu.calibration import (
@@ -41,6 +42,56 @@ ENGAGE = RequestFlags.ENGAGE | RequestFlags.STEER
 HELD_LOW = RequestFlags.STEER  # ENGAGE released (the first half of an engage press)
 REARM = ENGAGE | RequestFlags.REARM
 NAN = math.nan
+
+
+# Random input sequences for the property tests of the core and of the transmit guard
+# (tests/ecu/test_ecu_core_properties.py, tests/ecu/test_tx_guard.py).
+
+# Per input field, the values a random cycle may take instead of the healthy one.
+PERTURBATIONS: dict[str, st.SearchStrategy[Any]] = {
+    "estop_mode": st.sampled_from([EstopMode.PAUSE, EstopMode.DISABLE, EstopMode.INVALID]),
+    "estop_fresh": st.just(False),
+    "host_alive": st.just(False),
+    "request_accel_mps2": st.just(math.nan),
+    "request_steer_angle_rad": st.just(math.inf),
+    "request_flags": st.sampled_from(
+        [
+            RequestFlags.ENGAGE,
+            RequestFlags.NONE,
+            ENGAGE | RequestFlags.REARM,
+            RequestFlags.REARM,
+            ENGAGE | RequestFlags.STOP,
+        ]
+    ),
+    "request_fresh": st.just(False),
+    "vehicle_fresh": st.just(False),
+    "vehicle_corrupt": st.just(True),
+    "calibration_valid": st.just(False),
+    "overrun_streak": st.sampled_from([OVERRUN_STREAK_LIMIT - 1, OVERRUN_STREAK_LIMIT, 1000]),
+    "driver_brake_pressed": st.just(True),
+    "driver_throttle_pct": st.floats(0.0, 30.0),
+    "driver_steer_torque_nm": st.floats(-4.0, 4.0),
+    "unlatch": st.just(True),
+    "safety_arm": st.just(True),
+    "loop_stall": st.just(True),
+    "internal_error": st.just(True),
+    "tx_guard_trip": st.just(True),
+}
+
+
+@st.composite
+def input_changes(draw: st.DrawFn) -> dict[str, Any]:
+    """A healthy cycle's request, with zero to three fields perturbed."""
+    changes: dict[str, Any] = {
+        "request_accel_mps2": draw(st.floats(-8.0, 5.0)),
+        "request_steer_angle_rad": draw(st.floats(-1.0, 1.0)),
+    }
+    for key in draw(st.lists(st.sampled_from(sorted(PERTURBATIONS)), max_size=3, unique=True)):
+        changes[key] = draw(PERTURBATIONS[key])
+    return changes
+
+
+segments = st.lists(st.tuples(st.integers(1, 400), input_changes()), min_size=1, max_size=8)
 
 
 def extreme_calibration(end: str) -> Calibration:

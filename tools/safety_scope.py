@@ -40,17 +40,17 @@ SAFETY_SOURCES: tuple[SafetySource, ...] = (
 
 # The spec tests: the fixed files, plus every file of the two families that are still growing.
 SPEC_TEST_FILES: tuple[str, ...] = (
-    "tests/test_safety.py",
-    "tests/test_ecu_core_properties.py",
-    "tests/test_e2e.py",
-    "tests/test_vehicle_can.py",
-    "tests/test_canopen_link.py",
-    "tests/test_ecu_app.py",
+    "tests/ecu/test_safety.py",
+    "tests/ecu/test_ecu_core_properties.py",
+    "tests/protocol/test_e2e.py",
+    "tests/protocol/test_vehicle_can.py",
+    "tests/protocol/test_canopen_link.py",
+    "tests/ecu/test_ecu_app.py",
 )
-SPEC_TEST_GLOBS: tuple[str, ...] = ("tests/test_safety*.py", "tests/test_tx_guard*.py")
+SPEC_TEST_GLOBS: tuple[str, ...] = ("tests/ecu/test_safety*.py", "tests/ecu/test_tx_guard*.py")
 # Measured for coverage, not run for every mutant: the gear shift's branches of the core, and the
 # application-level attacks (some of them on the wall clock, which a mutant run must not depend on).
-COVERAGE_ONLY_TESTS: tuple[str, ...] = ("tests/test_reverse.py", "tests/test_ecu_safety_app.py")
+COVERAGE_ONLY_TESTS: tuple[str, ...] = ("tests/ecu/test_reverse.py", "tests/ecu/test_ecu_safety_app.py")
 
 # Mutation testing runs where a mutant is cheap to judge: the state machine and the guard.
 DEFAULT_MUTATE: tuple[str, ...] = ("bywire/ecu/safety.py", "bywire/ecu/tx_guard.py")

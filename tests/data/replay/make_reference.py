@@ -1,4 +1,4 @@
-"""Regenerate demo_10s.mcap, the replay reference of tests/test_replay.py (see its docstring).
+"""Regenerate demo_10s.mcap, the replay reference of tests/host/test_replay.py (see its docstring).
 
 A 10 s SIL run of the demo scenario, recorded, with the CAN frames left out (the replay does not
 use them, and the reference stays small). Run from the repository root:

@@ -24,8 +24,7 @@ from collections.abc import Callable
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_roadnet_helpers import RNDF_DIR
-from test_roadnet_parse import MINI, MINI_MDF, QUIRKS, _content
+from roadnet_helpers import MINI, MINI_MDF, QUIRKS, RNDF_DIR, network_content
 
 from bywire.host.roadnet.errors import MdfError, RndfError
 from bywire.host.roadnet.mdf import Mission, parse_mdf
@@ -186,7 +185,7 @@ def _property_tests(examples: int) -> tuple[Callable[..., None], ...]:
             piece = text[: int(cut * len(text))]
         net = _rndf(piece)
         if net is not None:
-            assert _content(net) == _content(full) and "end_file" in piece
+            assert network_content(net) == network_content(full) and "end_file" in piece
 
     @fuzz
     @given(case=st.integers(0, len(RNDF_TEXTS) - 1), data=st.data())
@@ -197,7 +196,7 @@ def _property_tests(examples: int) -> tuple[Callable[..., None], ...]:
         lines = text.splitlines(keepends=True)
         i = data.draw(st.integers(0, len(lines) - 1))
         net = _rndf("".join(lines[:i] + lines[i + 1 :]))
-        if net is None or _warned(net, full) or _content(net) == _content(full):
+        if net is None or _warned(net, full) or network_content(net) == network_content(full):
             return
         assert _keyword(lines[i]) in OPTIONAL_RNDF, f"deleting {lines[i]!r} silently changed the network"
 
@@ -218,7 +217,7 @@ def _property_tests(examples: int) -> tuple[Callable[..., None], ...]:
         else:
             out[i], out[j] = out[j], out[i]
         net = _rndf("".join(out))
-        if net is None or _warned(net, full) or _content(net) == _content(full):
+        if net is None or _warned(net, full) or network_content(net) == network_content(full):
             return
         if duplicate:  # an optional item copied into a block that lacked it: a valid, different file
             assert _keyword(lines[i]) in OPTIONAL_RNDF, (

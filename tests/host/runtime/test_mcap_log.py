@@ -33,7 +33,7 @@ from bywire.host.runtime.mcap_reader import McapLogReader, read_frames, read_obj
 from bywire.host.runtime.mcap_recorder import McapRecorder
 from bywire.host.runtime.store import ObjectStore
 
-TESTS_DIR = Path(__file__).parent
+TESTS_DIR = Path(__file__).resolve().parents[2]  # tests/, where the shared helpers are
 
 
 def _status(t_s: float, **changes: Any) -> Status:

@@ -15,7 +15,7 @@ import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from safety_spec import extreme_calibration
+from safety_spec import extreme_calibration, input_changes, segments
 
 from bywire.ecu.calibration import Calibration, default_calibration
 from bywire.ecu.core import ActuatorCommand, stop_decel_mps2, stop_time_bound_s
@@ -28,53 +28,6 @@ CAL = default_calibration()
 CALS = {"passat": CAL, "high": extreme_calibration("high"), "low": extreme_calibration("low")}
 EPS = 1e-9
 ENGAGE = RequestFlags.ENGAGE | RequestFlags.STEER
-
-
-# Per input field, the values a random cycle may take instead of the healthy one.
-PERTURBATIONS: dict[str, st.SearchStrategy[Any]] = {
-    "estop_mode": st.sampled_from([EstopMode.PAUSE, EstopMode.DISABLE, EstopMode.INVALID]),
-    "estop_fresh": st.just(False),
-    "host_alive": st.just(False),
-    "request_accel_mps2": st.just(math.nan),
-    "request_steer_angle_rad": st.just(math.inf),
-    "request_flags": st.sampled_from(
-        [
-            RequestFlags.ENGAGE,
-            RequestFlags.NONE,
-            ENGAGE | RequestFlags.REARM,
-            RequestFlags.REARM,
-            ENGAGE | RequestFlags.STOP,
-        ]
-    ),
-    "request_fresh": st.just(False),
-    "vehicle_fresh": st.just(False),
-    "vehicle_corrupt": st.just(True),
-    "calibration_valid": st.just(False),
-    "overrun_streak": st.sampled_from([OVERRUN_STREAK_LIMIT - 1, OVERRUN_STREAK_LIMIT, 1000]),
-    "driver_brake_pressed": st.just(True),
-    "driver_throttle_pct": st.floats(0.0, 30.0),
-    "driver_steer_torque_nm": st.floats(-4.0, 4.0),
-    "unlatch": st.just(True),
-    "safety_arm": st.just(True),
-    "loop_stall": st.just(True),
-    "internal_error": st.just(True),
-    "tx_guard_trip": st.just(True),
-}
-
-
-@st.composite
-def input_changes(draw: st.DrawFn) -> dict[str, Any]:
-    """A healthy cycle's request, with zero to three fields perturbed."""
-    changes: dict[str, Any] = {
-        "request_accel_mps2": draw(st.floats(-8.0, 5.0)),
-        "request_steer_angle_rad": draw(st.floats(-1.0, 1.0)),
-    }
-    for key in draw(st.lists(st.sampled_from(sorted(PERTURBATIONS)), max_size=3, unique=True)):
-        changes[key] = draw(PERTURBATIONS[key])
-    return changes
-
-
-segments = st.lists(st.tuples(st.integers(1, 400), input_changes()), min_size=1, max_size=8)
 
 
 class History:

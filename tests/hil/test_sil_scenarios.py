@@ -32,13 +32,13 @@ FAULT_SCENARIOS = (
 
 # Long runs judged elsewhere in the default suite, in full under -m slow: the heat (bounded SIL runs
 # and the 60 s three-process HIL run), the sinusoid (its 60 s string-stability run) and the flood
-# (the run compared bit for bit with its quiet twin) in tests/test_platoon_*.py.
+# (the run compared bit for bit with its quiet twin) in tests/hil/test_platoon_*.py.
 LONG_PLATOON_RUNS = ("gcdc_heat", "platoon_sinusoid", "v2v_fuzz")
 
 
 def _runs_here(name: str, path: Path) -> bool:
     """The spine's scenarios and the short platoon ones; the urban missions (minutes to tens of
-    minutes of driving) have their own bounded tests (tests/test_urban_*.py) and a slow campaign."""
+    minutes of driving) have their own bounded tests (tests/hil/test_urban_*.py) and a slow campaign."""
     return name not in LONG_PLATOON_RUNS and "urban" not in (yaml.safe_load(path.read_text()) or {})
 
 

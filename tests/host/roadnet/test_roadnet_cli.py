@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
-from test_roadnet_helpers import SYNTHETIC_RNDF, need_data, synthetic_mission_text
+from roadnet_helpers import SYNTHETIC_RNDF, need_data, synthetic_mission_text
 
 from bywire.cli import benchmark
 from bywire.host.roadnet import roadnet_cli

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from test_roadnet_helpers import graph, synthetic_mission_text, synthetic_network
+from roadnet_helpers import graph, synthetic_mission_text, synthetic_network
 
 from bywire.host.roadnet.graph import EdgeKind, GraphParams, RoadGraph, build_graph, join_jump
 from bywire.host.roadnet.ids import LaneId, WaypointId

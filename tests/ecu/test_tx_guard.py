@@ -11,8 +11,7 @@ import plant_model as _pm  # tests/ is on pytest's pythonpath
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from safety_spec import HELD_LOW, extreme_calibration
-from test_ecu_core_properties import segments
+from safety_spec import HELD_LOW, extreme_calibration, segments
 
 from bywire.ecu.app import command_frame
 from bywire.ecu.calibration import Calibration, default_calibration

@@ -27,7 +27,7 @@ from bywire.ecu.calibration import (
     loads_calibration,
 )
 
-CALIBRATIONS_DIR = Path(__file__).resolve().parents[1] / "ecu" / "calibrations"
+CALIBRATIONS_DIR = Path(__file__).resolve().parents[2] / "ecu" / "calibrations"
 
 
 def _load_generator() -> Any:

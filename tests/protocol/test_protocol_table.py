@@ -8,7 +8,7 @@ import pytest
 
 from bywire.protocol.table import REGENERATE, render_protocol_table, write_protocol_table
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_write_protocol_table(tmp_path: Path, rendered: str) -> None:
 
 def test_render_reflects_the_eds(tmp_path: Path) -> None:
     """The table is generated, not copied: change the EDS and the table changes with it."""
-    eds = (Path(__file__).resolve().parents[1] / "protocol" / "ecu.eds").read_text()
+    eds = (Path(__file__).resolve().parents[2] / "protocol" / "ecu.eds").read_text()
     changed = tmp_path / "ecu.eds"
     changed.write_text(
         eds.replace(

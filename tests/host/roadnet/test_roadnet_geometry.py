@@ -10,7 +10,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pyproj import Geod
-from test_roadnet_helpers import network
+from roadnet_helpers import network
 
 from bywire.host.roadnet.curves import SHARPNESS_MAX_1PM2, connector, drivable_connector, smooth_curve
 from bywire.host.roadnet.geo import PlanarFrame, TransverseMercator, frame_for

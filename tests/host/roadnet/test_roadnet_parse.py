@@ -5,116 +5,31 @@ from __future__ import annotations
 
 import math
 import pickle
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from test_roadnet_helpers import (
+from roadnet_helpers import (
     INCONSISTENT_PAIRS,
     MDF_TO_RNDF,
+    MINI,
+    MINI_MDF,
+    QUIRKS,
     RNDF_DIR,
+    Quirk,
     data_files,
+    delete_line,
+    insert_after,
     is_mdf,
+    line_of,
     mission,
     network,
+    network_content,
 )
 
 from bywire.host.roadnet.errors import MdfError, RndfError, RoadnetError
 from bywire.host.roadnet.ids import LaneId, WaypointId
 from bywire.host.roadnet.mdf import load_mdf, parse_mdf, resolve_mission
 from bywire.host.roadnet.rndf import FEET_TO_M, MPH_TO_MPS, RoadNetwork, load_rndf, parse_rndf
-
-MINI = """RNDF_name\tmini
-num_segments\t2
-num_zones\t1
-format_version\t1.0
-creation_date\t4/3/2007
-segment\t1
-num_lanes\t1
-segment_name\tFirst_St
-lane\t1.1
-num_waypoints\t3
-lane_width\t12
-left_boundary\tdouble_yellow
-checkpoint\t1.1.3\t1
-stop\t1.1.3
-exit\t1.1.3\t2.1.1
-1.1.1\t37.000000\t-122.000000
-1.1.2\t37.000100\t-122.000000
-1.1.3\t37.000200\t-122.000000
-end_lane
-end_segment
-segment\t2
-num_lanes\t1
-lane\t2.1
-num_waypoints\t2
-exit\t2.1.2\t3.0.1
-2.1.1\t37.000300\t-122.000000
-2.1.2\t37.000400\t-122.000000
-end_lane
-end_segment
-zone\t3
-num_spots\t1
-zone_name\tLot
-perimeter\t3.0
-num_perimeterpoints\t3
-exit\t3.0.2\t1.1.1
-3.0.1\t37.000500\t-122.000000
-3.0.2\t37.000500\t-122.000100
-3.0.3\t37.000600\t-122.000050
-end_perimeter
-spot\t3.1
-spot_width\t10
-checkpoint\t3.1.2\t2
-3.1.1\t37.000520\t-122.000050
-3.1.2\t37.000540\t-122.000050
-end_spot
-end_zone
-end_file
-"""
-
-MINI_MDF = """MDF_name\tmini_mdf
-RNDF\tmini
-format_version\t1.0
-creation_date\t30-Jan-07
-checkpoints
-num_checkpoints\t3
-1
-2
-1
-end_checkpoints
-speed_limits
-num_speed_limits\t3
-1\t5\t30
-2\t0\t20
-3\t0\t0
-end_speed_limits
-end_file
-"""
-
-
-def line_of(text: str, needle: str, nth: int = 0) -> int:
-    """1-based number of the (nth) line that starts with `needle`."""
-    hits = [i for i, ln in enumerate(text.splitlines(), start=1) if ln.startswith(needle)]
-    return hits[nth]
-
-
-def replace_line(text: str, needle: str, new: str) -> str:
-    return "\n".join(new if ln.startswith(needle) else ln for ln in text.splitlines()) + "\n"
-
-
-def delete_line(text: str, needle: str) -> str:
-    return "\n".join(ln for ln in text.splitlines() if not ln.startswith(needle)) + "\n"
-
-
-def insert_after(text: str, needle: str, new: str) -> str:
-    out = []
-    for ln in text.splitlines():
-        out.append(ln)
-        if ln.startswith(needle):
-            out.append(new)
-    return "\n".join(out) + "\n"
-
 
 # ---------------------------------------------------------------------------------------------- real files
 
@@ -218,89 +133,6 @@ def test_mini_parses_cleanly() -> None:
     assert net.area_ids == (1, 2, 3)
 
 
-Quirk = Callable[[str], str]
-
-QUIRKS: dict[str, tuple[Quirk, int]] = {
-    # name: (change of MINI, number of warnings it must produce)
-    "crlf": (lambda t: t.replace("\n", "\r\n"), 0),
-    "lone_cr": (lambda t: t.replace("\n", "\r"), 0),
-    "spaces_and_trailing_tabs": (lambda t: t.replace("\t", "  \t ").replace("\n", "\t\t\n"), 0),
-    "comment_lines_and_line_ends": (
-        lambda t: (
-            "/* change log */\n/* more */\n"
-            + t.replace("end_lane\n", "end_lane /* done */\n").replace(
-                "end_file\n", "end_file\n/* trailer */\n"
-            )
-        ),
-        0,
-    ),
-    "multi_line_comment": (
-        lambda t: t.replace("end_segment\n", "end_segment /* a\ncomment\nspanning */\n", 1),
-        0,
-    ),
-    "comment_glued_to_token": (lambda t: t.replace("end_file\n", "end_file/*x*/\n"), 0),
-    "no_final_newline": (lambda t: t.rstrip("\n"), 0),
-    "header_order_checkpoint_first": (
-        lambda t: t.replace(
-            "num_waypoints\t3\nlane_width\t12\nleft_boundary\tdouble_yellow\ncheckpoint\t1.1.3\t1\n",
-            "checkpoint\t1.1.3\t1\nlane_width\t12\nnum_waypoints\t3\nleft_boundary\tdouble_yellow\n",
-        ),
-        0,
-    ),
-    "solid_yellow": (lambda t: t.replace("double_yellow", "solid_yellow"), 0),
-    "num_spots_0_without_spots": (
-        lambda t: t[: t.index("spot\t3.1")].replace("num_spots\t1", "num_spots\t0") + "end_zone\nend_file\n",
-        0,
-    ),
-    "segment_count_disagrees": (lambda t: t.replace("num_segments\t2", "num_segments\t5"), 1),
-    "lane_count_disagrees": (lambda t: t.replace("num_lanes\t1", "num_lanes\t2", 1), 1),
-    "waypoint_count_disagrees": (lambda t: t.replace("num_waypoints\t3", "num_waypoints\t4"), 1),
-    "spot_count_disagrees": (lambda t: t.replace("num_spots\t1", "num_spots\t6"), 1),
-    "waypoints_not_from_1": (
-        lambda t: (
-            t.replace("1.1.1\t", "1.1.4\t")
-            .replace("1.1.2\t", "1.1.5\t")
-            .replace("1.1.3\t", "1.1.6\t")
-            .replace("checkpoint\t1.1.6", "checkpoint\t1.1.6")
-            .replace("1.1.3", "1.1.6")
-            .replace("1.1.1", "1.1.4")
-        ),
-        1,
-    ),
-    "duplicate_exit": (lambda t: insert_after(t, "exit\t1.1.3", "exit\t1.1.3\t2.1.1"), 1),
-    "duplicate_stop": (lambda t: insert_after(t, "stop\t1.1.3", "stop\t1.1.3"), 1),
-    "spot_without_checkpoint": (lambda t: delete_line(t, "checkpoint\t3.1.2"), 1),
-    "dangling_exit_dropped": (lambda t: insert_after(t, "exit\t1.1.3", "exit\t1.1.3\t2.1.9"), 1),
-    "checkpoint_in_other_lanes_header": (
-        lambda t: insert_after(delete_line(t, "checkpoint\t1.1.3"), "exit\t2.1.2", "checkpoint\t1.1.3\t1"),
-        1,
-    ),
-    "v11_extension_keywords": (
-        lambda t: (
-            t.replace("num_zones\t1\n", "num_zones\t1\nnum_intersections\t1\n")
-            .replace(
-                "segment_name\tFirst_St\n", "segment_name\tFirst_St\nnum_crosswalks\t1\nspeed_limit\t25.00\n"
-            )
-            .replace(
-                "lane_width\t12\n",
-                "lane_width\t12\nlane_type\tcar_lane\ncross\t1.1.2\t1.1\tstop\nlight\t1.1.3\t4.1\n",
-            )
-            .replace(
-                "end_lane\nend_segment\nsegment\t2",
-                "end_lane\ncrosswalk\t1.1\ncrosswalk_width\t10\ncrosswalk_p1\t37.0001\t-122.00001\n"
-                "crosswalk_p2\t37.0001\t-121.99999\nend_crosswalk\nend_segment\nsegment\t2",
-            )
-            .replace(
-                "end_zone\nend_file",
-                "end_zone\nintersection\t4\nnum_trafficlights\t1\ntrafficlight\t4.1\ngroup_id\t1\n"
-                "position\t37.0002\t-122.0\t3.0\nend_trafficlight\nend_intersection\nend_file",
-            )
-        ),
-        0,
-    ),
-}
-
-
 @pytest.mark.parametrize("name", sorted(QUIRKS))
 def test_quirk_is_accepted(name: str) -> None:
     change, n_warnings = QUIRKS[name]
@@ -313,18 +145,6 @@ def test_quirk_is_accepted(name: str) -> None:
         with pytest.raises(RndfError) as info:
             parse_rndf(text, "q.rndf", strict=True)
         assert "(strict)" in info.value.expected or "expected an existing" in info.value.expected
-
-
-def _content(net: RoadNetwork) -> tuple[object, ...]:
-    """What a network says, without the source line numbers."""
-    return (
-        sorted((w.id, w.lat, w.lon) for w in net.waypoints()),
-        sorted((e.exit, e.entry) for e in net.exits()),
-        sorted((n, c.waypoint) for n, c in net.checkpoints.items()),
-        sorted(s.waypoint for lane in net.lanes() for s in lane.stops),
-        [(lane.id, lane.width_m, lane.left_boundary, lane.right_boundary) for lane in net.lanes()],
-        [(s.id, s.name) for s in net.segments] + [(z.id, z.name) for z in net.zones],
-    )
 
 
 def test_quirks_lose_nothing() -> None:
@@ -340,7 +160,7 @@ def test_quirks_lose_nothing() -> None:
         "comment_glued_to_token",
         "header_order_checkpoint_first",
     ):
-        assert _content(parse_rndf(QUIRKS[name][0](MINI), "a")) == _content(plain), name
+        assert network_content(parse_rndf(QUIRKS[name][0](MINI), "a")) == network_content(plain), name
 
 
 def test_dangling_exit_is_dropped_with_its_line() -> None:

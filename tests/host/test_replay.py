@@ -25,7 +25,7 @@ from bywire.host.replay import ReplayError, replay
 from bywire.host.runtime.mcap_reader import read_frames, read_objects
 from bywire.host.runtime.mcap_recorder import McapRecorder
 
-REFERENCE = Path(__file__).parent / "data" / "replay" / "demo_10s.mcap"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "replay" / "demo_10s.mcap"
 
 
 def _bywire(*args: str) -> subprocess.CompletedProcess[str]:

@@ -10,7 +10,7 @@ import math
 import networkx as nx
 import numpy as np
 import pytest
-from test_roadnet_helpers import (
+from roadnet_helpers import (
     INCONSISTENT_PAIRS,
     MDF_TO_RNDF,
     graph,
