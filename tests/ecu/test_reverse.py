@@ -1,5 +1,5 @@
-"""The reverse gear end to end (issue 5): the protocol's gear signals, the ECU's gear rules, the Passat
-plant's reverse physics and a closed loop that backs the car 10 m.
+"""The reverse gear end to end (urban driving: backing out of a parking spot): the protocol's gear signals,
+the ECU's gear rules, the Passat plant's reverse physics and a closed loop that backs the car 10 m.
 
 Rules under test (ecu/gear.py): a shift only at standstill with the brake held, the ECU braking and
 holding while the wanted, requested and engaged gears differ, GEAR_TIMEOUT when the gateway never

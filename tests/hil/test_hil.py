@@ -224,8 +224,8 @@ SUPERVISOR_CASES = {
 
 @pytest.mark.parametrize("scenario", sorted(SUPERVISOR_CASES))
 def test_supervisor_catches_module_faults_in_a_multi_process_run(tmp_path: Path, scenario: str) -> None:
-    """Issue 3: each module fault is detected within its bound and handled in a real HIL run; the
-    recording of the run opens with the mcap reader and replays exactly."""
+    """The host runtime's supervisor: each module fault is detected within its bound and handled in a
+    real HIL run; the recording of the run opens with the mcap reader and replays exactly."""
     record = tmp_path / "run.mcap"
     proc, doc, _ = _hil_run(tmp_path, scenario, "--record", str(record))
     assert proc.returncode == 0, proc.stdout + proc.stderr + json.dumps(doc.get("checks"))

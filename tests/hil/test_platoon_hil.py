@@ -1,7 +1,7 @@
-"""The 10-vehicle GCDC heat in the three-process HIL (issue 4), through `bywire hil run --mode hil` as a
-user runs it: bus servers, ECU, plant (with the world, its V2V broadcasts on loopback UDP and the GPS
-receiver on a pty) and host (the `gcdc` configuration) as separate processes. One bounded run: the heat's
-first 60 s, with our own receiver's bridge moved inside them; behaviour is judged, never timing.
+"""The 10-vehicle GCDC heat in the three-process HIL (cooperative driving, seed 003), through `bywire hil run
+--mode hil` as a user runs it: bus servers, ECU, plant (with the world, its V2V broadcasts on loopback UDP and
+the GPS receiver on a pty) and host (the `gcdc` configuration) as separate processes. One bounded run: the
+heat's first 60 s, with our own receiver's bridge moved inside them; behaviour is judged, never timing.
 """
 
 from __future__ import annotations

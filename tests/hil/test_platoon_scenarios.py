@@ -1,5 +1,5 @@
-"""Platoon runs in SIL (issue 4), bounded: what `tests/hil/test_sil_scenarios.py` (which runs every shipped
-scenario, the five platoon ones included, and judges its checks) does not already show.
+"""Platoon runs in SIL (cooperative driving, seed 003), bounded: what `tests/hil/test_sil_scenarios.py` (which
+runs every shipped scenario, the five platoon ones included, and judges its checks) does not already show.
 
 - String stability with V2V at the GCDC headway of 0.6 s: the Plexe sinusoid around 80 km/h (below the
   GCDC's 100 km/h cap, which binds the shipped 100 km/h version on every crest), long enough for the

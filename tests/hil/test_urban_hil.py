@@ -1,8 +1,7 @@
-"""Urban scenarios (issue 5) in the three-process HIL, through `bywire hil run --mode hil` as a user runs it:
-bus servers, ECU, plant (with the urban world, its object list on loopback UDP) and host (the `urban`
-configuration) as separate processes. A four-way stop with a car waiting, the host frozen mid-turn
-(SIGSTOP), the DARPA sample mission's first 90 s and the whole mission; behaviour is judged, never
-timing."""
+"""Urban driving scenarios (seed 000) in the three-process HIL, through `bywire hil run --mode hil` as a user
+runs it: bus servers, ECU, plant (with the urban world, its object list on loopback UDP) and host (the `urban`
+configuration) as separate processes. A four-way stop with a car waiting, the host frozen mid-turn (SIGSTOP),
+the DARPA sample mission's first 90 s and the whole mission; behaviour is judged, never timing."""
 
 from __future__ import annotations
 

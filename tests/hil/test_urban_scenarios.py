@@ -1,8 +1,8 @@
-"""The urban scenarios of issue 5 in SIL: the FMU Passat through the ECU, the host's urban modules on the
-runtime, the RNDF/MDF world with its traffic. Every shipped scenario with its own checks, plus what each
-is about (the order at the four-way stop, the stop in the intersection, ...); the DARPA sample mission
-and NQE area A bounded to their first 200 s by default (whole: `-m slow`); a recording replays exactly;
-the report's plots are written."""
+"""The urban driving scenarios (seed 000) in SIL: the FMU Passat through the ECU, the host's urban modules on
+the runtime, the RNDF/MDF world with its traffic. Every shipped scenario with its own checks, plus what each
+is about (the order at the four-way stop, the stop in the intersection, ...); the DARPA sample mission and NQE
+area A bounded to their first 200 s by default (whole: `-m slow`); a recording replays exactly; the report's
+plots are written."""
 
 from __future__ import annotations
 

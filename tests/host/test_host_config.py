@@ -128,7 +128,7 @@ def test_module_faults_must_name_a_module_of_the_host(tmp_path: Path) -> None:
 
 
 def test_a_stop_policy_brings_the_car_to_a_controlled_stop_through_the_ecu(tmp_path: Path) -> None:
-    """Issue 3: the supervisor's third reaction, end to end in SIL: the controller fails, its policy
+    """The host runtime supervisor's third reaction, end to end in SIL: the controller fails, its policy
     says stop, the ECU link sets the STOP flag, and the ECU stops and holds the car."""
     from bywire.hil.run import run_scenario
 

@@ -1,4 +1,4 @@
-"""Record a run to MCAP and replay it through the host's modules (issue 3, part 4).
+"""Record a run to MCAP and replay it through the host's modules (the host runtime's record and replay).
 
 The committed reference (tests/data/replay/demo_10s.mcap, a 10 s SIL run of the demo, topics
 only) is openpilot's process replay for us: CI replays it with the current code and the outputs

@@ -33,7 +33,8 @@ FAULT_BITS = sum(int(f) for f in Fault)  # every bit the protocol defines
 # Bus-level examples cost a few ms each (virtual bus, EcuNode/HostMaster pumps); pure ones are cheap.
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FUZZ_PURE = settings(max_examples=300, deadline=None)
-# Every defined request bit (REVERSE came with the gear, issue 5): the model must not call it invalid.
+# Every defined request bit (REVERSE came with the gear, for urban driving): the model must not call
+# it invalid.
 ALL_REQUEST_FLAGS = int(RequestFlags(sum(RequestFlags)))
 
 

@@ -188,7 +188,7 @@ def test_bench_main_writes_contract_json(tmp_path: Path) -> None:
 
 
 def test_bench_platoon_runs_as_a_user_runs_it(tmp_path: Path) -> None:
-    """`bywire bench platoon --json FILE` (issue 4 contract), a very short run."""
+    """`bywire bench platoon --json FILE` (its JSON contract), a very short run."""
     import subprocess
     import sys
 

@@ -1,5 +1,5 @@
-"""String-stability estimator (issue 4): known-answer synthetic chains, CSV layouts and errors, CLI
-contract JSON, and the shared real recordings (read in place from ../shared/data, never copied)."""
+"""String-stability estimator (cooperative driving): known-answer synthetic chains, CSV layouts and errors,
+CLI contract JSON, and the shared real recordings (read in place from ../shared/data, never copied)."""
 
 from __future__ import annotations
 
@@ -221,7 +221,7 @@ def test_real_recording(csv: Path) -> None:
 
 
 def test_the_contract_command_runs_as_a_user_runs_it(tmp_path: Path) -> None:
-    """`bywire platoon string-stability CSV --json FILE` (issue 4 contract)."""
+    """`bywire platoon string-stability CSV --json FILE` (its JSON contract)."""
     import subprocess
     import sys
 

@@ -1,4 +1,4 @@
-"""Property tests of the RNDF / MDF readers on truncated and mutated real files (issue 5).
+"""Property tests of the RNDF / MDF readers on truncated and mutated real files (urban driving, seed 000).
 
 Whatever the damage, the reader returns a network (mission) or raises the documented RndfError (MdfError):
 never another exception.  Beyond that, a damaged file must not pass as a different valid one unless it

@@ -1,5 +1,6 @@
-"""RNDF / MDF readers (issue 5): every shared real file, a table test per real-file quirk, a table of broken
-files with the line and the expectation each error must name, strict mode, and MDF <-> RNDF resolution."""
+"""RNDF / MDF readers (urban driving, seed 000): every shared real file, a table test per real-file quirk, a
+table of broken files with the line and the expectation each error must name, strict mode, and MDF <-> RNDF
+resolution."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-"""MCAP recording of the store's topics and the CAN buses (issue 3): exact round trips, files that the
-standard `mcap` reader opens, survival of a SIGKILLed recorder, `bywire log info|plot`, and the live
-Foxglove WebSocket view speaking the same schema."""
+"""MCAP recording of the store's topics and the CAN buses (the host runtime's record and replay): exact round
+trips, files that the standard `mcap` reader opens, survival of a SIGKILLed recorder, `bywire log info|plot`,
+and the live Foxglove WebSocket view speaking the same schema."""
 
 from __future__ import annotations
 

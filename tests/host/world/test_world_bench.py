@@ -1,6 +1,6 @@
-"""`bywire bench world` (issue 4): the JSON contract on a short run, and the cross-checks it carries (the
-kd-tree and brute-force matches agree; the closed-form CYRA agrees with the Euler baseline). No timing
-is asserted: the figures are for the report, not for pass/fail."""
+"""`bywire bench world` (cooperative driving): the JSON contract on a short run, and the cross-checks it
+carries (the kd-tree and brute-force matches agree; the closed-form CYRA agrees with the Euler baseline). No
+timing is asserted: the figures are for the report, not for pass/fail."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Lane map (issue 4; seed 003 IV-A): recording from noisy, unevenly sampled tracks, 0.5 m segments, offset
+"""Lane map (seed 003 IV-A): recording from noisy, unevenly sampled tracks, 0.5 m segments, offset
 lanes, matching with foot points and geodesic distances, the next-lane pitfall, heading disambiguation,
 object assignment, save/load with file/field errors, and a fuzz test of the loader."""
 

@@ -1,6 +1,6 @@
-"""NMEA 0183 decoding of the pose server (issue 4): known sentences, checksums, the byte-stream splitter,
-drop reasons, pynmea2 as an independent oracle, and fuzzing (random and mutated input never raises or
-hangs)."""
+"""NMEA 0183 decoding of the pose server (cooperative driving): known sentences, checksums, the byte-stream
+splitter, drop reasons, pynmea2 as an independent oracle, and fuzzing (random and mutated input never raises
+or hangs)."""
 
 from __future__ import annotations
 

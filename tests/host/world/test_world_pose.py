@@ -1,6 +1,6 @@
-"""Pose server (issue 4): local frame, the dead-reckoning EKF through RTK loss, bridge outages (no fix and
-frozen fixes), jumps and latency, and the receiver emulator -> pseudo-terminal -> pyserial -> pose server
-round trip with corrupted bytes."""
+"""Pose server (cooperative driving): local frame, the dead-reckoning EKF through RTK loss, bridge outages (no
+fix and frozen fixes), jumps and latency, and the receiver emulator -> pseudo-terminal -> pyserial -> pose
+server round trip with corrupted bytes."""
 
 from __future__ import annotations
 

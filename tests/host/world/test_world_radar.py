@@ -1,4 +1,4 @@
-"""Radar fusion (issue 4; seed 003 IV-B, VI) on synthetic tracks: association under noise and dropouts, the
+"""Radar fusion (seed 003 IV-B, VI) on synthetic tracks: association under noise and dropouts, the
 bridge (frozen and silent senders), the next-lane car, a non-communicating car in between, switching
 leaders, the blacklist, and the hand-over to the platoon strategy."""
 

@@ -1,4 +1,4 @@
-"""Vehicle manager (issue 4; seed 003 II-f, IV-C): CYRA prediction known answers and properties against
+"""Vehicle manager (seed 003 II-f, IV-C): CYRA prediction known answers and properties against
 numerical integration, the per-station filter, latency abstraction, message checks, silent and frozen
 senders (the bridge), jumps, and predict_trajectory for the platoon MPC."""
 

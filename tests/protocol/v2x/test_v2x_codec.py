@@ -1,5 +1,5 @@
-"""V2X codec (issue 4, seed 003 III/IV-B): our UPER messages, unit conversions at the edge, known answers,
-round trips, range refusals naming the field, the strict canonical check, and decoder fuzzing."""
+"""V2X codec (cooperative driving, seed 003 III/IV-B): our UPER messages, unit conversions at the edge, known
+answers, round trips, range refusals naming the field, the strict canonical check, and decoder fuzzing."""
 
 from __future__ import annotations
 

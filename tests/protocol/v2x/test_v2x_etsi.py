@@ -1,5 +1,6 @@
-"""Interoperability (issue 4): real ETSI CAM frames, decoded with the real ETSI schemas chosen by their
-protocolVersion, into our VehicleState; read in place from ../shared/data/v2x_asn1, never copied."""
+"""Interoperability of the V2X codec (cooperative driving): real ETSI CAM frames, decoded with the real ETSI
+schemas chosen by their protocolVersion, into our VehicleState; read in place from ../shared/data/v2x_asn1,
+never copied."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The V2X fuzzer (issue 4; seed 003 III-B.3 (3), the CALM fuzzer) against the hardened receiver: directly
+"""The V2X fuzzer (seed 003 III-B.3 (3), the CALM fuzzer) against the hardened receiver: directly
 on simulated time, and as a bounded UDP flood next to a legitimate 10 Hz sender on loopback."""
 
 from __future__ import annotations

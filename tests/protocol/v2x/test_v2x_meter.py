@@ -1,4 +1,4 @@
-"""Link tools (issue 4; seed 003 III-B.3 (1)-(2)): probe format, the loss/corruption meter on known impaired
+"""Link tools (seed 003 III-B.3 (1)-(2)): probe format, the loss/corruption meter on known impaired
 streams, echo/ping round trips and the `bywire v2x` CLI functions on loopback, and the benchmark's JSON."""
 
 from __future__ import annotations

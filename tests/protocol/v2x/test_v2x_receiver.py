@@ -1,4 +1,4 @@
-"""Hardened V2V receiver (issue 4, seed 003 III-B / IV-B): every plausibility rule at its boundary, the
+"""Hardened V2V receiver (seed 003 III-B / IV-B): every plausibility rule at its boundary, the
 counting invariant, quarantine and blacklist, re-anchoring, road-side messages, and hostile sequences."""
 
 from __future__ import annotations

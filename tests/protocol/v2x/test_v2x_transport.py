@@ -1,5 +1,6 @@
-"""V2X UDP broadcast transport (issue 4): address parsing, loopback broadcast to several receivers, kernel
-receive stamps, the periodic sender, and (root only) a broadcast link between two network namespaces."""
+"""V2X UDP broadcast transport (cooperative driving): address parsing, loopback broadcast to several
+receivers, kernel receive stamps, the periodic sender, and (root only) a broadcast link between two network
+namespaces."""
 
 from __future__ import annotations
 
