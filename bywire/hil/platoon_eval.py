@@ -1,10 +1,10 @@
-"""Evaluation of a platoon run (issue 4): the contract metrics and the per-vehicle table, from ground truth.
+"""Evaluation of a platoon run (seed 003): the contract metrics and the per-vehicle table, from ground truth.
 
 Inputs: the world's per-vehicle trace (`traffic.csv`, `hil.world.traffic.TRAFFIC_COLUMNS`), the plant
 trace (our car's FMU state), the host trace (which controller was in charge), the world's bookkeeping
 (gaps and TTC at every plant event) and the host's V2V counters. Everything from ground truth.
 
-Contract metrics (issue 4): `string_stability`, `min_gap_m`, `min_ttc_s`, `headway_error_rms_m`,
+Contract metrics: `string_stability`, `min_gap_m`, `min_ttc_s`, `headway_error_rms_m`,
 `collisions`, `limit_violations`, `v2v_rejected` (by reason), `platoon_length_m`; and `vehicles`: per
 vehicle headway error (desired minus actual distance, as seed 003 Fig. 7), time-gap and distance-gap mean
 and std, minimum gap, minimum TTC, control effort (RMS acceleration, m/s^2), collisions.
@@ -18,7 +18,7 @@ Definitions:
   `ego_collisions`. `min_gap_m` / `min_ttc_s`: ours (TTC while closing).
 - `limit_violations`: episodes in which our car left the GCDC envelope: acceleration (FMU, 0.25 s moving
   mean) outside -4.5 .. 2.0 m/s^2 by more than `ACCEL_TOL_MPS2` while the host was not braking for an
-  emergency (controller "emergency", see host.modules.gcdc), or speed outside 0 .. 100 km/h by more
+  emergency (controller "emergency", see host.modules.control.platoon), or speed outside 0 .. 100 km/h by more
   than `SPEED_TOL_MPS`.
 - `string_stability`: the same estimator as `bywire platoon string-stability` (host.platoon.
   string_stability: peak H1 gain of successive vehicles' accelerations over the leader's excited band),

@@ -59,7 +59,7 @@ Further deviations:
 - Acceleration penalty relative to the leader (``accel_ref="leader"``, off by default): the paper's
   ``w_acc a^2`` pulls every planned acceleration toward zero, so the plan passes on only part of a
   leader's predicted acceleration and the follower acts like a constant-time-gap PD on the gap error,
-  which at h = 0.6 s amplifies low-frequency disturbances (host/modules/gcdc.py). ``w_acc (a -
+  which at h = 0.6 s amplifies low-frequency disturbances (host/modules/control/platoon.py). ``w_acc (a -
   a_lead)^2`` keeps the smoothing but around the leader's predicted profile (the cooperative
   feed-forward of CACC, inside the QP, with the prediction's own limits). Still a QP: only q changes.
 - Velocity limits are relaxed to what the acceleration limits can reach from the current speed

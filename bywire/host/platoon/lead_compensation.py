@@ -1,4 +1,4 @@
-"""Delay-compensated leader prediction for the follow controller (issue 4; beyond seed 003 Sec. V).
+"""Delay-compensated leader prediction for the follow controller (beyond seed 003 Sec. V).
 
 Seed 003 IV-C predicts a leader with constant acceleration, "abstracting from latency": the received
 state is predicted to the query time. What that cannot remove is the lag *behind* the query time on our
@@ -13,9 +13,9 @@ The compensation predicts the leader's acceleration ``lead_s`` ahead from its je
 ``a_c = a + lead_s * j``, and shifts the whole predicted trajectory to that acceleration: speeds by
 ``(a_c - a) t``, kept within [0, v_max], and positions by the integral of that change. In the frequency
 domain the feed-forward gets the phase lead ``(1 + lead_s s) / (1 + tau_j s)``, with ``tau_j`` the jerk
-filter below. With the follow QP's gains and lead_s = 0.3 s the linearised string (host/modules/gcdc.py
-has the numbers) has ``|H| <= 1`` over the band for total lags of 0.25-0.5 s; much more lead (>= 0.4 s)
-over-compensates and amplifies near 0.7-0.9 Hz.
+filter below. With the follow QP's gains and lead_s = 0.3 s the linearised string
+(host/modules/control/platoon.py has the numbers) has ``|H| <= 1`` over the band for total lags of
+0.25-0.5 s; much more lead (>= 0.4 s) over-compensates and amplifies near 0.7-0.9 Hz.
 
 The jerk comes from successive accelerations of the same vehicle, as the world model reports them
 (one estimate per update), through a first-order low-pass of time constant ``jerk_tau_s``: the

@@ -1,6 +1,6 @@
 """How curves are made and sampled into `Path`s (seed 000 sec. 8, Fig. 10b/c): three kinds.
 
-- `smooth_curve` / `Path.from_points`: the interpolating cubic spline through the points, parameterised by
+- `smooth_curve` / `path_through`: the interpolating cubic spline through the points, parameterised by
   chord length (scipy ``CubicSpline``), sampled uniformly inside every chord.  It is C2 in its parameter
   and the parameter speed |dP/dt| stays close to 1, so heading and curvature are continuous along it
   (Fig. 10b).  End conditions are "natural" (zero curvature at both ends) unless end headings are given,
@@ -118,6 +118,20 @@ _Q = np.array(
 _POW = np.arange(6)
 _DQ = _Q[:, 1:] * _POW[1:]  # coefficients of u^0..u^4 of the first derivatives
 _DDQ = _DQ[:, 1:] * _POW[1:5]  # coefficients of u^0..u^3 of the second derivatives
+
+
+def path_through(
+    x_m: npt.ArrayLike,
+    y_m: npt.ArrayLike,
+    step_m: float = DEFAULT_STEP_M,
+    *,
+    start_heading_rad: float | None = None,
+    end_heading_rad: float | None = None,
+) -> Path:
+    """The smooth curve through the points (`smooth_curve`), sampled every ~step_m."""
+    return smooth_curve(
+        x_m, y_m, step_m, start_heading_rad=start_heading_rad, end_heading_rad=end_heading_rad
+    )[0]
 
 
 def _basis(u: FloatArray) -> FloatArray:

@@ -4,7 +4,7 @@ A `Path` is a polyline in local metric coordinates (x east, y north, metres) sam
 the heading (rad, counter-clockwise from east) and the curvature (1/m, positive turning left) of the
 smooth curve it was sampled from, and the cumulative arc length ``s`` (0 at the first sample).  It is what
 the section-8 planner hands the controllers: `stub(s0)` is the ~30 m "path stub" ahead of the car.
-How the curves are made and sampled into paths is `curves` (`Path.from_points` is its `smooth_curve`).
+How the curves are made and sampled into paths is `curves` (`curves.path_through` for a curve through points).
 
 Projection (`project`): the foot point on the polyline, found among the segments next to the nearest
 samples (a kd-tree over the samples, built on first use) or, given `hint_s` (the last known s, what a
@@ -110,23 +110,6 @@ class Path:
         self._x, self._y, self._heading, self._k, self._s = x, y, h, k, s
         self._tree = None
         return self
-
-    @classmethod
-    def from_points(
-        cls,
-        x_m: npt.ArrayLike,
-        y_m: npt.ArrayLike,
-        step_m: float = DEFAULT_STEP_M,
-        *,
-        start_heading_rad: float | None = None,
-        end_heading_rad: float | None = None,
-    ) -> Path:
-        """The smooth curve through the points (`curves.smooth_curve`), sampled every ~step_m."""
-        from .curves import smooth_curve  # here, not at the top: curves builds Paths
-
-        return smooth_curve(
-            x_m, y_m, step_m, start_heading_rad=start_heading_rad, end_heading_rad=end_heading_rad
-        )[0]
 
     @staticmethod
     def concat(paths: Iterable[Path], tolerance_m: float = JOIN_TOLERANCE_M) -> Path:

@@ -207,9 +207,7 @@ def _control(
     h = Harness("platoon_control", PlatoonControl({"reserve_m": 8.0, **params}))
     for k in range(steps):
         t = 10.0 + 0.05 * k
-        h.publish(
-            MISSION, MissionCommand(t, "drive", v_des, 0.0, 0.0, False, True, False, False, math.nan)
-        )
+        h.publish(MISSION, MissionCommand(t, "drive", v_des, 0.0, 0.0, False, True, False, False, math.nan))
         h.publish(ODOMETRY, Odometry(t, 0.0, speed, True))
         if world:
             h.publish(

@@ -80,9 +80,7 @@ def _plan(
 def _control(plan: UrbanPlan | None, pose_y: float = 0.0, speed: float = 5.0, now: float = 1.0) -> Any:
     h = Harness("urban_control", UrbanControl({}))
     h.store.publish(URBAN_POSE, UrbanPose(now, True, now, 2.0, pose_y, 0.0, speed, 0.0, 1, 0))
-    h.store.publish(
-        MISSION, MissionCommand(now, "script", 0, 0, 0, False, True, False, False, math.nan)
-    )
+    h.store.publish(MISSION, MissionCommand(now, "script", 0, 0, 0, False, True, False, False, math.nan))
     h.store.publish(ECU_STATUS, _status(EcuState.ENGAGED))
     if plan is not None:
         h.store.publish(URBAN_PLAN, plan)

@@ -12,7 +12,13 @@ from hypothesis import strategies as st
 from pyproj import Geod
 from roadnet_helpers import network
 
-from bywire.host.roadnet.curves import SHARPNESS_MAX_1PM2, connector, drivable_connector, smooth_curve
+from bywire.host.roadnet.curves import (
+    SHARPNESS_MAX_1PM2,
+    connector,
+    drivable_connector,
+    path_through,
+    smooth_curve,
+)
 from bywire.host.roadnet.geo import PlanarFrame, TransverseMercator, frame_for
 from bywire.host.roadnet.path import DEFAULT_STEP_M, Path, PathPoint, concat, wrap_angle
 
@@ -72,7 +78,7 @@ def circle_points(
 
 
 def test_straight_line_known_answers() -> None:
-    p = Path.from_points([0.0, 30.0, 100.0], [0.0, 30.0, 100.0])
+    p = path_through([0.0, 30.0, 100.0], [0.0, 30.0, 100.0])
     assert p.length_m == pytest.approx(100.0 * math.sqrt(2.0), rel=1e-12)
     np.testing.assert_allclose(p.heading_rad, math.pi / 4, atol=1e-12)
     np.testing.assert_allclose(p.curvature_1pm, 0.0, atol=1e-12)
@@ -84,11 +90,11 @@ def test_straight_line_known_answers() -> None:
 def test_circle_curvature_heading_and_length() -> None:
     r = 20.0
     x, y = circle_points(r, 0.0, math.pi, 37)  # counter-clockwise: a left turn, curvature +1/r
-    p = Path.from_points(x, y)
+    p = path_through(x, y)
     inner = (p.s_m > 0.15 * p.length_m) & (p.s_m < 0.85 * p.length_m)
     np.testing.assert_allclose(p.curvature_1pm[inner], 1.0 / r, rtol=0.01)
     # a cubic through sparse points of a circle ripples around 1/r between them: 15 deg apart, +-7 %
-    coarse = Path.from_points(*circle_points(r, 0.0, math.pi, 13))
+    coarse = path_through(*circle_points(r, 0.0, math.pi, 13))
     inner_c = (coarse.s_m > 0.15 * coarse.length_m) & (coarse.s_m < 0.85 * coarse.length_m)
     np.testing.assert_allclose(coarse.curvature_1pm[inner_c], 1.0 / r, rtol=0.07)
     # heading is the tangent of the circle: polar angle + 90 deg
@@ -103,7 +109,7 @@ def test_circle_curvature_heading_and_length() -> None:
 def test_heading_and_curvature_agree_with_the_samples() -> None:
     x = np.array([0.0, 20.0, 45.0, 60.0, 70.0, 72.0, 90.0])
     y = np.array([0.0, 5.0, -3.0, 10.0, 30.0, 45.0, 60.0])
-    p = Path.from_points(x, y)
+    p = path_through(x, y)
     ds = np.diff(p.s_m)
     chord_heading = np.arctan2(np.diff(p.y_m), np.diff(p.x_m))
     mid_heading = np.unwrap(p.heading_rad)[:-1] + 0.5 * np.diff(np.unwrap(p.heading_rad))
@@ -133,7 +139,7 @@ def test_near_duplicate_points_are_merged() -> None:
 
 def test_point_at_and_sample() -> None:
     x, y = circle_points(15.0, -0.5, 2.0, 9)
-    p = Path.from_points(x, y)
+    p = path_through(x, y)
     assert p.point_at(-5.0) == p.start and p.point_at(1e9).s_m == p.length_m
     assert p.point_at(p.length_m)[:2] == pytest.approx(p.end[:2])
     s = np.linspace(0.0, p.length_m, 37)
@@ -169,7 +175,7 @@ def test_projection_round_trip(frac: float, offset: float, dpsi: float, hinted: 
     assert proj.heading_error_rad == pytest.approx(dpsi, abs=5e-3)
 
 
-_SNAKE = Path.from_points([0, 30, 60, 90, 120], [0, 15, 0, -15, 0])  # curvature <= ~0.06: radius > 6 m
+_SNAKE = path_through([0, 30, 60, 90, 120], [0, 15, 0, -15, 0])  # curvature <= ~0.06: radius > 6 m
 
 
 def test_projection_without_heading_and_vectorised() -> None:
@@ -186,7 +192,7 @@ def test_hint_keeps_to_its_own_leg_of_a_hairpin() -> None:
         (np.linspace(0, 50, 6), 50 + 6 * np.sin(np.linspace(0.3, math.pi - 0.3, 5)), np.linspace(50, 0, 6))
     )
     y = np.concatenate((np.zeros(6), 6 - 6 * np.cos(np.linspace(0.3, math.pi - 0.3, 5)), np.full(6, 12.0)))
-    p = Path.from_points(x, y)
+    p = path_through(x, y)
     near_out = p.project(20.0, 5.0)
     assert near_out.s_m < 50.0 and near_out.lateral_offset_m == pytest.approx(5.0, abs=0.05)
     back_s = p.project(20.0, 12.0).s_m
@@ -212,18 +218,18 @@ def test_stub_between_and_slices() -> None:
 
 
 def test_concat_joins_and_refuses_gaps() -> None:
-    a = Path.from_points([0, 10], [0, 0])
-    b = Path.from_points([10, 10], [0, 10])
+    a = path_through([0, 10], [0, 0])
+    b = path_through([10, 10], [0, 10])
     c = concat([a, Path.point(10.0, 0.0, 0.0), b])
     assert c.length_m == pytest.approx(20.0) and len(c) == len(a) + len(b) - 1
     assert np.all(np.diff(c.s_m) > 0)
     with pytest.raises(ValueError, match=r"starts 1\.000 m from the end"):
-        concat([a, Path.from_points([11, 20], [0, 0])])
+        concat([a, path_through([11, 20], [0, 0])])
     with pytest.raises(ValueError):
         concat([])
     # headings stay continuous across the +-pi cut
-    west1 = Path.from_points([0, -10], [0, 0.01])
-    west2 = Path.from_points([-10, -20], [0.01, -0.01])
+    west1 = path_through([0, -10], [0, 0.01])
+    west2 = path_through([-10, -20], [0.01, -0.01])
     w = concat([west1, west2])
     assert np.max(np.abs(np.diff(w.heading_unwrapped_rad))) < 0.01
 
@@ -231,7 +237,7 @@ def test_concat_joins_and_refuses_gaps() -> None:
 def test_offset_and_reversed() -> None:
     r = 20.0
     x, y = circle_points(r, 0.0, math.pi / 2, 19)
-    p = Path.from_points(x, y)
+    p = path_through(x, y)
     inner = p.offset(5.0)  # left of a left turn: towards the centre, radius 15
     mid = slice(len(p) // 3, 2 * len(p) // 3)
     np.testing.assert_allclose(inner.curvature_1pm[mid], 1.0 / 15.0, rtol=0.02)
@@ -295,10 +301,10 @@ def test_connector_shapes_are_sensible() -> None:
     assert np.max(np.abs(change.heading_rad)) < 0.25 and np.all(np.diff(change.x_m) > 0)
     assert len(connector((1, 2, 0.3, 0.1), (1, 2.0000001, 2.0, 0))) == 1  # same place: a point
     # curvature continuity across a join: arc, connector, arc
-    arc1 = Path.from_points(*circle_points(30.0, -math.pi / 2, 0.6, 7))
+    arc1 = path_through(*circle_points(30.0, -math.pi / 2, 0.6, 7))
     e = arc1.end
     x2, y2 = circle_points(25.0, 0.4, 0.8, 7)
-    arc2 = Path.from_points(x2 + 60.0, y2 + 10.0)
+    arc2 = path_through(x2 + 60.0, y2 + 10.0)
     joined = concat([arc1, connector(e, arc2.start), arc2])
     assert np.max(np.abs(np.diff(joined.curvature_1pm))) < 0.02
     assert np.max(np.abs(np.diff(joined.heading_unwrapped_rad))) < 0.02
