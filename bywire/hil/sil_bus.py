@@ -9,7 +9,7 @@ frame does not pay for the rest of vehicle CAN), and gives `recv(timeout=0)` a l
 
 The copy is made slot by slot rather than through `can.Message(...)`, whose keyword handling cost
 more than the rest of a send (as `protocol.timebase.data_frame` does); the filters are python-can's,
-precompiled into tuples. Both are checked against python-can's own behaviour in tests/test_sil_bus.py.
+precompiled into tuples. Both are checked against python-can's own behaviour in tests/hil/test_sil_bus.py.
 """
 
 from __future__ import annotations

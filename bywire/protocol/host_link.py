@@ -6,7 +6,7 @@ Sec. II-j / V-B: the low-level controller receives a reference acceleration from
 Here the requests and the ECU's status travel as CANopen PDOs (DESIGN section 3); the object
 dictionary (`protocol/ecu.eds`, records 0x2000 and 0x2100) fixes the layout, this module fixes what
 the integers mean. The EDS repeats each factor and unit (`Factor=`, `Unit=`) for tools and the
-generated protocol table; `tests/test_canopen_link.py` checks that the two agree.
+generated protocol table; `tests/protocol/test_canopen_link.py` checks that the two agree.
 
 Encoding saturates to the integer range of the wire type (a request of -40 m/s^2 becomes the most
 negative INTEGER16, -32.768 m/s^2; the ECU clamps to its own limits anyway) and refuses NaN, which

@@ -13,7 +13,7 @@ and the host's `urban_io` module reads it. One datagram per cycle, little-endian
                           heading), length_m, width_m
 
 `decode` refuses anything else with `ObjectListError` naming the field; it never raises another
-exception (fuzzed in tests/test_urban_objects.py).
+exception (fuzzed in tests/protocol/test_urban_objects.py).
 
 Transports (`open_object_link`): `mem://NAME` in one process (SIL: a deterministic in-process queue) and
 `udp://127.0.0.1:PORT` between processes (HIL: loopback only; the receiver binds, the sender sends).

@@ -2,7 +2,7 @@
 
 Data is the spec: `vehicle.dbc` defines vehicle CAN, `ecu.eds` the host <-> ECU CANopen link;
 this module only renders them (plus the wire enums of `ecu_types` and the EMCY codes of
-`host_link`) as Markdown. `tests/test_protocol_table.py` compares docs/protocol.md with a fresh
+`host_link`) as Markdown. `tests/protocol/test_protocol_table.py` compares docs/protocol.md with a fresh
 render; regenerate with `bywire protocol table > docs/protocol.md` (or `write_protocol_table`).
 """
 

@@ -29,7 +29,7 @@ def rx_time_s(msg: can.Message, now_s: float) -> float:
 
 
 # The slots can.Message has in the python-can versions `data_frame` was written against; with any
-# other layout frames go through the constructor (tests/test_sil_bus.py compares the two).
+# other layout frames go through the constructor (tests/hil/test_sil_bus.py compares the two).
 MESSAGE_SLOTS = frozenset(
     {
         "__weakref__",

@@ -613,7 +613,7 @@ def _generate_packers(info: MessageInfo) -> _Packers:
     unknown enum value), and the general code then computes the result or raises its precise
     error: the generated code only ever takes the fast path, it never decides an error.
     The general loop, with a function call and a getattr per signal, cost about half of a frame's
-    encoding; tests/test_vehicle_can_packers.py holds the two to the same results.
+    encoding; tests/protocol/test_vehicle_can_packers.py holds the two to the same results.
     """
     ns: dict[str, Any] = {"_T": info.frame_type, "_float": float}
     pack: list[str] = []

@@ -52,9 +52,9 @@ conditions have to be fulfilled at the same time". So
 
     free = (spat_AB and temp_AB) or (spat_BA and temp_BA)
 
-(tests/test_behaviour_mtc.py shows a case the garbled form approves into a collision). Why it holds:
-d_AP is non-decreasing in t, B's position increasing (or constant), so (13) puts us beyond P_A2 for
-every t >= t_B1, i.e. whenever B is inside its window, and (15) keeps us before P_A1 for every t <=
+(tests/host/behaviour/test_behaviour_mtc.py shows a case the garbled form approves into a collision). Why
+it holds: d_AP is non-decreasing in t, B's position increasing (or constant), so (13) puts us beyond P_A2
+for every t >= t_B1, i.e. whenever B is inside its window, and (15) keeps us before P_A1 for every t <=
 t_B2; (14) and (16) are the time gaps at MP themselves. Both orders cannot hold at once (Delta T >= 0).
 
 n vehicles (eq. 17): free_tot = free_1 and ... and free_n. Every pairwise check uses the same drive-off

@@ -30,8 +30,8 @@ the K-turn and passing geometry) follow the parameter sets; each names its sourc
 ones of AnnieWAY's published planner (`aw_ChsmPlanner.hpp`) are marked "AnnieWAY code".
 
 Every standard set is checked against rules 5.2 ("Vehicle should pull into the traffic lane when
-oncoming vehicles leave a gap of at least 10 seconds") in tests/test_behaviour_rules.py: standing
-at the stop line, the MTC must find a moment to go inside a 10 s gap of a 30 mph stream.
+oncoming vehicles leave a gap of at least 10 seconds") in tests/host/behaviour/test_behaviour_rules.py:
+standing at the stop line, the MTC must find a moment to go inside a 10 s gap of a 30 mph stream.
 """
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ publisher). The price is the pattern's semantics:
   waiting for a subscriber that is not there yet (or not any more: a restarted subscriber on the
   same endpoint gets what was queued while it was away, then the rest).
 
-Robustness (each in `tests/test_runtime_transport.py`): `send` never blocks (NOBLOCK): when the
+Robustness (each in `tests/host/runtime/test_runtime_transport.py`): `send` never blocks (NOBLOCK): when the
 publisher's queue holds `SEND_QUEUE` objects (the subscriber is slow, stopped, dead or not yet
 there) the object is dropped and counted in `TopicPublisher.dropped`; `sent` counts objects taken
 by the queue. Objects already in the kernel's socket buffers (~200 kB) or in the receiving process

@@ -26,7 +26,8 @@ traffic lights and speed limits as constraints, the GCDC limits (`host.limits`) 
   ``accel_ref: leader`` (the penalty around the leader's predicted acceleration: 0.73 of it passed on)
   and ``accel_lead_s: 0.2`` (that acceleration predicted 0.2 s ahead from its jerk,
   `host.platoon.lead_compensation`, for ~0.3 s of actuation and sampling lag). The linear model then
-  gives |H| <= 1 for car lags 0.2-0.3 s and information delays 0.05-0.2 s (tests/test_string_model.py);
+  gives |H| <= 1 for car lags 0.2-0.3 s and information delays 0.05-0.2 s
+  (tests/host/platoon/test_string_model.py);
   the 300 s heat measures 0.982-0.983 (seeds 11-13; the band's low edge, where any constant-time-gap
   follower tends to 1) with a headway error of 0.14-0.17 m RMS (0.6 m with the paper's penalty).
   Leaders' predictions are capped at our own speed limit (a leader predicted through 100 km/h looked
