@@ -1,6 +1,6 @@
 """Recording a run: every bus frame, and with MCAP also every topic of the host runtime.
 
-By the file's suffix: `.mcap` records into MCAP (`host.runtime.mcap_log`: Foxglove opens it, and
+By the file's suffix: `.mcap` records into MCAP (`host.runtime.mcap_recorder`: Foxglove opens it, and
 `bywire log info|plot|replay` read it); any other suffix uses python-can's loggers (.log, .asc,
 .blf, .csv, .trc), frames only. One file for all buses of a run: each frame carries its bus
 ("vehicle", "host_link"), in MCAP as its topic `/can/<bus>`.

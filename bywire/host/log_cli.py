@@ -2,7 +2,7 @@
 
 `info` lists the topics with their schema, message count, first/last time, mean rate and gaps, and
 says whether the file was closed cleanly or is a crash-truncated recording. `plot` draws chosen
-numeric fields over time into a PNG. Both read with `mcap_log`'s tolerant reader, so a recording
+numeric fields over time into a PNG. Both read with `mcap_reader`'s tolerant reader, so a recording
 cut short by a crash is inspected up to its last complete chunk, and a damaged one is refused with
 a LogError naming the file and the problem.
 

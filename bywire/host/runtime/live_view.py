@@ -4,8 +4,8 @@ A Foxglove WebSocket server (foxglove-sdk) publishing the topics while the host 
 default. Nothing starts unless a `LiveView` is constructed; then `store.add_tap(view.publish)`
 shows every topic live (open `view.url` in Foxglove as a "Foxglove WebSocket" connection).
 
-Messages and schemas are exactly those of the MCAP recorder (`mcap_log.encode_object`,
-`mcap_log.schema_bytes`: one encoder), so a layout made on a recording works live and vice versa.
+Messages and schemas are exactly those of the MCAP recorder (`log_schema.encode_object`,
+`log_schema.schema_bytes`: one encoder), so a layout made on a recording works live and vice versa.
 Times are the objects' `t_s` in ns (simulated time in SIL). The server runs on its own foxglove
 Context, so several views (or tests) do not share channels, and is bound to loopback by default:
 the protocol has no authentication.
