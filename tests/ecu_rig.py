@@ -191,10 +191,16 @@ class Rig(_Car):
 
 class WallRig(_Car):
     """The ECU under its real-time executive on the wall clock, with the car and the host in a
-    second thread (1 ms ticks) on python-can `virtual` buses. Use as a context manager."""
+    second thread (1 ms ticks) on python-can `virtual` buses. Use as a context manager.
+    `link_bus`: the ECU's end of a host link of its own (a host in another process; then set
+    `host_silent`, the rig's own host master is not on it)."""
 
     def __init__(
-        self, calibration: object = "default", *, step_hook: Callable[[float], None] | None = None
+        self,
+        calibration: object = "default",
+        *,
+        step_hook: Callable[[float], None] | None = None,
+        link_bus: can.BusABC | None = None,
     ) -> None:
         super().__init__()
         tag = uuid.uuid4().hex[:6]
@@ -202,9 +208,11 @@ class WallRig(_Car):
         self.clock = WallClock()
         cal = default_calibration() if calibration == "default" else calibration
         self.buses: list[can.BusABC] = []
+        if link_bus is not None:
+            self.buses.append(link_bus)
         self.ecu = EcuApp(
             self._bus(self.vehicle_ch),
-            self._bus(self.link_ch),
+            link_bus if link_bus is not None else self._bus(self.link_ch),
             self.clock,
             cal,  # type: ignore[arg-type]
             None if cal is not None else "no calibration",

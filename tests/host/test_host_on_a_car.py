@@ -15,33 +15,17 @@ import json
 import socket
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
-import can
 import pytest
+from ecu_rig import WallRig
 from shared_data import shared_data_dir
 
-from bywire.clock import WallClock
-from bywire.ecu.app import EcuApp
-from bywire.ecu.calibration import default_calibration
-from bywire.ecu.executive import CycleStats, CyclicExecutive
 from bywire.host.roadnet.network import load_network
 from bywire.host.trace import HOST_COLUMNS, read_trace
 from bywire.protocol.bus_url import open_bus
-from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.ecu_types import EcuState
 from bywire.protocol.objects import EgoPoseRecord, ObjectList, encode
-from bywire.protocol.vehicle_can import (
-    DbwCommand,
-    DriverInputs,
-    EstopRadio,
-    Motion,
-    SteerReport,
-    VehicleCodec,
-    VehicleTx,
-    WheelSpeeds,
-)
-from bywire.protocol.vehicle_rx import VehicleRx
 
 SAMPLE = shared_data_dir() / "rndf" / "darpa_sample"
 RNDF, MDF = SAMPLE / "Sample_RNDF.txt", SAMPLE / "Sample_MDF.txt"
@@ -63,72 +47,25 @@ def _port() -> int:
         return int(s.getsockname()[1])
 
 
-class CarAroundTheHost:
-    """The ECU, the gateway of a car at standstill, and the localisation, on the wall clock."""
+class Localisation:
+    """The car's localisation at 50 Hz on the object link: it stands at `pose`, nothing around it.
+    Called from the ECU's cycle (a millisecond clock), it also notes every state the ECU was in."""
 
-    def __init__(self, ecu_port: int, host_port: int, objects_port: int, pose: tuple[float, float, float]):
-        self.clock = WallClock()
-        self.vehicle = can.Bus(interface="virtual", channel=f"car-{ecu_port}", receive_own_messages=False)
-        self.gateway = can.Bus(interface="virtual", channel=f"car-{ecu_port}", receive_own_messages=False)
-        self.link = open_bus(f"udp://127.0.0.1:{ecu_port}?peer=127.0.0.1:{host_port}")
-        self.ecu = EcuApp(self.vehicle, self.link, self.clock, default_calibration(), stats=CycleStats())
-        self.codec = VehicleCodec()
-        self.tx = VehicleTx(self.codec)
-        self.rx = VehicleRx(self.codec, accept=["DBW_Command"], max_age_cycles=None)
-        self.objects = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.objects_addr = ("127.0.0.1", objects_port)
-        self.pose = pose
+    def __init__(self, port: int, pose: tuple[float, float, float]) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.addr = ("127.0.0.1", port)
+        self.pose = EgoPoseRecord(*pose, 0.0, 0.0)
+        self.seq = 0
         self.states: set[EcuState] = set()
-        self.max_throttle_pct = 0.0
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
+        self.rig: WallRig | None = None
 
-    def __enter__(self) -> CarAroundTheHost:
-        executive = CyclicExecutive(0.001, self.clock, self.ecu.step, self.ecu.stats)
-        self._threads = [
-            threading.Thread(target=executive.run, kwargs={"stop": self._stop.is_set}, daemon=True),
-            threading.Thread(target=self._car, daemon=True),
-        ]
-        for t in self._threads:
-            t.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        for t in self._threads:
-            t.join(2.0)
-        for bus in (self.vehicle, self.gateway, self.link):
-            bus.shutdown()
-        self.objects.close()
-
-    def _car(self) -> None:
-        t0 = self.clock.now()
-        seq = 0
-        for k in range(10**9):
-            if self._stop.is_set():
-                return
-            self.clock.sleep_until(t0 + k * 0.001)
-            now = self.clock.now()
-            if k % 10 == 0:
-                for frame in (
-                    WheelSpeeds(0.0, 0.0, 0.0, 0.0),
-                    Motion(0.0, 0.0, 0.0),
-                    DriverInputs(False, 0.0, 0.0, False),
-                    SteerReport(0.0, 0.0),
-                ):
-                    self.gateway.send(self.tx.encode(frame, timestamp_s=now))
-            if k % 50 == 0:
-                self.gateway.send(self.tx.encode(EstopRadio(EstopMode.RUN), timestamp_s=now))
-            if k % 20 == 0:  # the localisation at 50 Hz: the car stands at the first checkpoint
-                seq += 1
-                x, y, heading = self.pose
-                pose = EgoPoseRecord(x, y, heading, 0.0, 0.0)
-                self.objects.sendto(encode(ObjectList(now, seq, pose, ())), self.objects_addr)
-            while (msg := self.gateway.recv(0)) is not None:
-                frame = self.rx.feed(msg, now, now)
-                if isinstance(frame, DbwCommand):
-                    self.max_throttle_pct = max(self.max_throttle_pct, frame.throttle_pct)
-            self.states.add(self.ecu.core.safety.state)
+    def __call__(self, now_s: float) -> None:
+        if self.rig is not None:
+            self.states.add(self.rig.state)
+        k = round(now_s * 1000)
+        if k % 20 == 0:
+            self.seq += 1
+            self.sock.sendto(encode(ObjectList(now_s, self.seq, self.pose, ())), self.addr)
 
 
 def test_host_drives_the_darpa_sample_mission_from_a_car_command_line(tmp_path: Path) -> None:
@@ -139,9 +76,13 @@ def test_host_drives_the_darpa_sample_mission_from_a_car_command_line(tmp_path: 
     assert start is not None
     ecu_port, host_port, objects_port = _port(), _port(), _port()
     summary, modules_file, trace = tmp_path / "summary.json", tmp_path / "modules.json", tmp_path / "host.csv"
-    with CarAroundTheHost(
-        ecu_port, host_port, objects_port, (start.x_m, start.y_m, start.heading_rad)
-    ) as car:
+    localisation = Localisation(objects_port, (start.x_m, start.y_m, start.heading_rad))
+    ecu_link = open_bus(f"udp://127.0.0.1:{ecu_port}?peer=127.0.0.1:{host_port}")
+    with WallRig(link_bus=ecu_link, step_hook=localisation) as car:
+        # The car stands, unarmed, with the E-stop on RUN; the host on the other end of the link is
+        # the process below, not the rig's own master.
+        car.host_silent, car.speed_mps = True, 0.0
+        localisation.rig = car
         proc = subprocess.run(
             [
                 sys.executable,
@@ -178,11 +119,12 @@ def test_host_drives_the_darpa_sample_mission_from_a_car_command_line(tmp_path: 
     doc = json.loads(summary.read_text())
     urban = doc["urban"]
     assert urban["states"], urban  # the behaviour planned: it left its initial state on the route
-    assert EcuState.ENGAGED in car.states, car.states
+    localisation.sock.close()
+    assert EcuState.ENGAGED in localisation.states, localisation.states
     requests = read_trace(trace, HOST_COLUMNS)
     engaged = requests["ecu_state"] == int(EcuState.ENGAGED)
     assert (requests["accel_request_mps2"][engaged] > 0.1).any(), requests["accel_request_mps2"].max()
-    assert car.max_throttle_pct > 0.0  # and the ECU acted on them
+    assert max(cmd.throttle_pct for _, cmd in car.commands) > 0.0  # and the ECU acted on them
 
 
 def _args(*argv: str) -> argparse.Namespace:
