@@ -32,6 +32,9 @@ the median over operations), i.e. how long an operation kept other Python thread
 scheduler) from running, mostly by holding the GIL. The `idle` row is that loop while this thread
 only sleeps, in 10 ms windows between the others: the machine's own noise.
 
+Recorder kill (`recorder_kill` in the JSON): how much a recording loses when its process is killed,
+against the flush interval (benchmarks/recorder_kill.py).
+
 Latency: the sender stamps `time.perf_counter_ns()` (CLOCK_MONOTONIC, shared by all processes of the
 machine) into the object just before publishing; the receiver subtracts it from its own clock on
 receipt. Objects are paced (small at 1 kHz, scans at 50 Hz) so the numbers are latency, not queueing.
@@ -59,6 +62,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks import recorder_kill
 from benchmarks.runtime_phases import bench_cross_process, bench_in_process, bench_setup, with_baseline
 from benchmarks.runtime_transports import CANDIDATES, KINDS, object_bytes
 from bywire.host.runtime import transport
@@ -182,12 +186,15 @@ def run(seconds: float = DEFAULT_SECONDS, candidates: Sequence[str] = CANDIDATES
         chosen = doc["candidates"][kind].get("transport")
         if chosen is not None:
             doc["cross_process"][kind] = chosen
+    print("killing recorders ...", flush=True)
+    doc["recorder_kill"] = recorder_kill.run(runs=max(3, round(8 * scale)))
     return doc
 
 
 def main(args: argparse.Namespace) -> int:
     doc = run(DEFAULT_SECONDS if args.seconds is None else args.seconds)  # the CLI's default is None
     _print_table(doc)
+    recorder_kill.print_row(doc["recorder_kill"])
     print(f"\ncross-process transport: {doc['choice']}")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -212,6 +212,9 @@ class InlineWorker(WorkerState):
     def cpu_time_s(self) -> float | None:
         return None  # see hang_cpu_share: the step is no longer running when it is judged
 
+    def run_state(self) -> str | None:
+        return None  # likewise: the inline watchdog judged the state before interrupting the step
+
     def abandon(self, cancel: bool = False) -> None:
         self.ctx.fenced = True  # the step was already interrupted; nothing runs any more
 

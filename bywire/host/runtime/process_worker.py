@@ -43,6 +43,7 @@ from bywire.host.runtime.worker import (
     complete_on_record,
     describe_exception,
     task_cpu_time_s,
+    task_state,
 )
 
 # (kind, parameters) -> a fresh module; a module-level function, so that it reaches the child by name.
@@ -368,6 +369,9 @@ class ProcessWorker(WorkerState):
 
     def cpu_time_s(self) -> float | None:
         return None if self.pid is None else task_cpu_time_s(self.pid, self.pid)
+
+    def run_state(self) -> str | None:
+        return None if self.pid is None else task_state(self.pid, self.pid)
 
     def abandon(self, cancel: bool = False) -> None:
         """Kill the child (hung, or its instance given up) and close the streams, off the scheduler."""

@@ -485,6 +485,10 @@ class Runtime:
             return "hang", f"{where} (CPU use unknown)", busy_s
         if share > SPIN_CPU_SHARE:
             return "hang", f"{where}, spinning ({share:.0%} of a CPU)", busy_s
+        # Little CPU is not yet blocked: a thread that is runnable wants the CPU and was kept off it
+        # (other processes, a stalled VM). A runnable thread is spinning or starved, never deadlocked.
+        if w.run_state() == "R":
+            return "hang", f"{where}, runnable but kept off the CPU ({share:.0%} of a CPU)", busy_s
         return "deadlock", f"{where}, blocked ({share:.0%} of a CPU): deadlock or endless wait", busy_s
 
     def _handle(self, e: Entry, now_s: float, cause: str, detail: str, onset_s: float) -> None:

@@ -90,6 +90,10 @@ class Worker(Protocol):
 
     def cpu_time_s(self) -> float | None: ...
 
+    def run_state(self) -> str | None:
+        """The scheduler state of the thread or process running the module (`task_state`)."""
+        ...
+
     def ready(self) -> bool: ...
 
     def abandon(self, cancel: bool = False) -> None: ...
@@ -229,6 +233,9 @@ class ThreadWorker(WorkerState):
 
     def cpu_time_s(self) -> float | None:
         return None if self._native_id is None else task_cpu_time_s("self", self._native_id)
+
+    def run_state(self) -> str | None:
+        return None if self._native_id is None else task_state("self", self._native_id)
 
     def abandon(self, cancel: bool = False) -> None:
         """Give up on a hung instance: fence its outputs; `cancel` a spinning one (see the module doc)."""

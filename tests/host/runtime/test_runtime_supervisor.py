@@ -150,6 +150,34 @@ def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(
     assert len(zombies) == (1 if (cause, where) == ("deadlock", "threads") else 0)
 
 
+class _LateWorker:
+    """A late worker as the wall-time supervisor samples it: 0.1 ms of CPU per look, in `state`."""
+
+    def __init__(self, state: str) -> None:
+        self.state, self.cpu_s = state, 1.0
+
+    def cpu_time_s(self) -> float:
+        self.cpu_s += 1e-4
+        return self.cpu_s
+
+    def run_state(self) -> str:
+        return self.state
+
+
+@pytest.mark.parametrize(("state", "cause"), [("R", "hang"), ("S", "deadlock"), ("D", "deadlock")])
+def test_a_runnable_worker_with_little_cpu_is_starved_or_spinning_never_deadlocked(
+    state: str, cause: str
+) -> None:
+    """On a loaded machine a spinning thread may get a tenth of a CPU: its share alone would call it
+    blocked. Its scheduler state tells: runnable (R) wants the CPU; only a sleeping one is stuck."""
+    rt, _store = make_runtime({})
+    entry = rt.entries["a"]
+    entry.busy_mark = None
+    got, detail, _ = rt._classify_hang(entry, _LateWorker(state), 0.2, 0.06)  # type: ignore[arg-type]
+    assert got == cause, detail
+    assert ("kept off the CPU" in detail) == (state == "R")
+
+
 def test_slow_module_is_detected_after_the_configured_misses_and_degraded() -> None:
     policy = FailurePolicy(action="degrade", slow_misses=3, slow_window=5, degrade_speed_mps=4.0)
     rt, store = make_runtime({"slow_from": 0.2, "slow_s": 0.015}, policy)
@@ -289,11 +317,18 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     t0 = clock.now()
     rt.start(t0)
     rt.run_wall(t0 + 0.5, tick_s=0.001)
+    summary = rt.summary(clock.now())["modules"]
     rt.close()
-    assert len(seen) >= 5
+    # What is judged is what the runtime did, not how fast the machine was: a stalled VM may make
+    # any module late and skip periods, which the runtime must count, never hide.
+    assert len(seen) >= 2
     for release_s, input_t_s in seen:
         # Never one of the /fast published during the 30 ms sleep (up to six of them).
         assert release_s - 0.05 < input_t_s <= release_s
-    assert len(sink_log) >= 11, (t0, sink_log, rt.events)  # every period of the 0.5 s run (12 or 13)
-    assert [e.cause for e in rt.events] == ["slow"]
+    link = summary["link"]
+    assert link["releases"] == len(sink_log)
+    assert link["releases"] + link["skipped"] >= 11, (t0, sink_log, link)  # every period of 0.5 s: 12 or 13
+    slow_events = [e.cause for e in rt.events if e.module == "slow"]
+    assert slow_events == ["slow"], rt.events  # reported once, and degraded: not again
+    assert {e.cause for e in rt.events} == {"slow"}, rt.events  # lateness is never called a hang
     assert not consumer_log  # the slow module is late every cycle: its consumer never ran on old data
