@@ -260,6 +260,11 @@ def evaluate(
     gcdc = extra.pop("gcdc", None)
     urban = extra.pop("urban", None)
     urban_host = extra.pop("urban_host", None)
+    stalls = extra.pop("stalls", None)  # HIL: the processes' stall records (bywire.stall_recorder)
+    culprits = extra.pop("watchdog_culprits", None)
+    if stalls is not None:
+        metrics["host_stalls"] = stalls.get("host", {}).get("count", 0)
+        metrics["plant_stalls"] = stalls.get("plant", {}).get("count", 0)
     metrics.update(extra)
     urban_details: dict[str, Any] = {}
     if scenario.urban is not None:
@@ -288,6 +293,10 @@ def evaluate(
     document.update(urban_details)
     if runtime is not None:
         document["host_runtime"] = runtime
+    if culprits is not None:
+        document["watchdog_culprits"] = culprits  # which process fell behind when a watchdog fired
+    if stalls is not None:
+        document["stalls"] = stalls
     return document
 
 

@@ -86,6 +86,15 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
     for check in result["checks"]:
         mark = "PASS" if check["passed"] else "FAIL"
         print(f"  {mark}  {check['name']}: {check['value']} ({check['op']} {check['limit']})")
+    for c in result.get("watchdog_culprits", []):
+        print(f"  watchdog {c['fault']} at {c['at_s']:.3f} s: fell behind: {', '.join(c['fell_behind'])}")
+        for process, recs in c["stalls"].items():
+            for r in recs:
+                where = " <- ".join(reversed(r["suspect_stack"] or [])) or "?"
+                print(
+                    f"    {process}: {r['channel']} silent {r['gap_ms']} ms from {r['from_s']:.3f} s, "
+                    f"busiest thread {r['busiest_thread']} at {where}"
+                )
     print(
         f"{result['scenario']} ({result['mode']}): {result['verdict'].upper()}"
         + (f" — report in {result['report_dir']}" if result.get("report_dir") else "")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import gc
 import json
 import os
 import time
@@ -31,8 +32,11 @@ from bywire.host.trace import TraceWriter
 from bywire.process_util import StopFlag, wait_for_t0
 from bywire.protocol.bus_url import open_bus
 from bywire.realtime import apply_realtime
+from bywire.stall_recorder import StallRecorder
 
 PLANT_PERIOD_S = 0.001
+
+STALL_STEP_S = 0.020  # twenty periods of the 1 kHz loop: two of the gateway's 10 ms reports
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -48,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--traffic-trace", type=Path, help="CSV trace of every vehicle of the world")
     p.add_argument(
         "--world-summary", type=Path, help="write the world's bookkeeping (gaps, TTC, collisions) as JSON"
+    )
+    p.add_argument(
+        "--stalls", type=Path, help="write the stall recorder's evidence (gaps of the 1 kHz loop) as JSON"
     )
     p.add_argument("--leader-profile", type=Path, help="OpenACC or CARMA CSV: the replay vehicle's speed")
     p.add_argument("--objects", help="object link of an urban world, e.g. udp://127.0.0.1:47200")
@@ -86,6 +93,10 @@ def main(args: argparse.Namespace) -> int:
 
         profile = leader_profile_from_csv(scenario, args.leader_profile)
     plant: Plant | None = None
+    # A silence of the 1 kHz loop over STALL_STEP_S is a stall: recorded with what every thread was doing.
+    stalls = StallRecorder(
+        "plant", {"step": STALL_STEP_S}, rt_priority=args.rt_priority + 1 if args.rt_priority else 0
+    )
     try:
         if args.v2x:
             from bywire.protocol.v2x.transport import open_v2x
@@ -97,6 +108,16 @@ def main(args: argparse.Namespace) -> int:
             from bywire.protocol.objects import open_object_link
 
             objects = open_object_link(args.objects, receiver=False)
+        if scenario.world is not None:
+            # The V2V senders' ASN.1 compile (~0.1-0.2 s of pyparsing) here, not in the first step:
+            # seen in HIL, it held the plant's loop for 109 ms and the ECU stopped the car.
+            from bywire.protocol.v2x.codec import compiled_spec
+
+            compiled_spec()
+        # Collect the set-up's garbage now and keep what lives from the collector's passes: pyparsing's
+        # finalizers, collected inside a step, held the loop for 85 ms in a loaded HIL run.
+        gc.collect()
+        gc.freeze()
         t0 = wait_for_t0(args.t0)
         t0_unix = t0 + (time.time() - time.monotonic())
         links = PlantLinks(
@@ -110,8 +131,15 @@ def main(args: argparse.Namespace) -> int:
         plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace, links=links)
         stats = CycleStats()
         end = t0 + scenario.duration_s
-        executive = CyclicExecutive(PLANT_PERIOD_S, clock, plant.step, stats)
+        step = plant.step
+
+        def step_and_beat(deadline_s: float) -> None:
+            step(deadline_s)
+            stalls.beat("step")
+
+        executive = CyclicExecutive(PLANT_PERIOD_S, clock, step_and_beat, stats)
         clock.sleep_until(t0)
+        stalls.start()
         executive.run(stop=lambda: stop() or clock.now() >= end)
         snap: dict[str, Any] = stats.snapshot()
         print(
@@ -120,6 +148,9 @@ def main(args: argparse.Namespace) -> int:
             flush=True,
         )
     finally:
+        stalls.close()
+        if args.stalls is not None:
+            args.stalls.write_text(json.dumps(stalls.summary(), indent=1), encoding="utf-8")
         trace.close()
         if traffic is not None:
             traffic.close()

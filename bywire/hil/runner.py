@@ -39,6 +39,7 @@ from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_c
 from bywire.hil.scenario import Scenario
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil import RunResult
+from bywire.hil.stall_report import culprits
 from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.trace import HOST_COLUMNS, read_trace
@@ -263,6 +264,8 @@ def run_hil(
                 "-",
                 "--duration",
                 repr(scenario.duration_s),
+                "--stalls",
+                str(run_dir / "plant_stalls.json"),
                 *plant_world_args,
             ],
             run_dir / "plant.log",
@@ -359,6 +362,7 @@ def run_hil(
         if all(state == "ok" for state in result_extra["recording"]["parts"].values()):
             for part in parts:
                 part.unlink()  # all in `record` now; a part that had trouble stays for a post-mortem
+    stalls: dict[str, Any] = {}
     runtime_path = run_dir / "host_runtime.json"
     if runtime_path.exists():
         runtime = json.loads(runtime_path.read_text(encoding="utf-8"))
@@ -368,7 +372,13 @@ def run_hil(
         urban_host = runtime.pop("urban", None)
         if urban_host is not None:
             result_extra["urban_host"] = urban_host
+        host_stalls = runtime.pop("stalls", None)
+        if host_stalls is not None:
+            stalls["host"] = host_stalls
         result_extra["host_runtime"] = runtime
+    plant_stalls = run_dir / "plant_stalls.json"
+    if plant_stalls.exists():
+        stalls["plant"] = json.loads(plant_stalls.read_text(encoding="utf-8"))
     urban_path = run_dir / "urban.json"
     if urban_path.exists():
         result_extra["urban"] = json.loads(urban_path.read_text(encoding="utf-8"))
@@ -387,6 +397,12 @@ def run_hil(
     host_trace = read_trace(host_path, HOST_COLUMNS) if host_path.exists() else None
     traffic_path = run_dir / "traffic.csv"
     traffic = read_trace(traffic_path, TRAFFIC_COLUMNS) if traffic_path.exists() else None
+    result_extra["stalls"] = {
+        process: {"count": len(summary.get("stalls", [])) + summary.get("dropped", 0), **summary}
+        for process, summary in stalls.items()
+    }
+    # Which process fell behind when a watchdog fired (run time: the host trace's clock).
+    result_extra["watchdog_culprits"] = culprits(host_trace, stalls, t0, scenario.duration_s)
     return RunResult(plant=plant_trace, host=host_trace, extra=result_extra, traffic=traffic)
 
 

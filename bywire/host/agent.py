@@ -22,7 +22,7 @@ import can
 from bywire.clock import Clock, SimClock
 from bywire.host.config import HostConfig
 from bywire.host.inputs import HostFaultHooks, HostInputs, NoFaults
-from bywire.host.modules import KINDS, HostResources
+from bywire.host.modules import KINDS, HostResources, import_implementations
 from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.runtime import Runtime
@@ -51,6 +51,7 @@ class HostAgent:
         vehicle_bus: can.BusABC | None = None,
         unix_time: Callable[[float], float] | None = None,
         objects: Any = None,
+        heartbeat_sent: Callable[[float], None] | None = None,
     ) -> None:
         self.inputs = inputs
         self.t0_s = t0_s
@@ -71,6 +72,7 @@ class HostAgent:
             unix_time=unix_time,
             objects=objects,
             faults=self.faults,
+            heartbeat_sent=heartbeat_sent,
         )
         self.resources.prepare_world(self.config.modules)
         self.stopped = False
@@ -104,7 +106,10 @@ class HostAgent:
         return lambda: build(params, resources)
 
     def prestart(self) -> bool:
-        """Start the worker processes before the run (see `Runtime.prestart`)."""
+        """Before the run: import what the modules' builders import and start the worker processes
+        (see `Runtime.prestart`), so that neither lands in the first cycles of driving."""
+        import_implementations(m.kind for m in self.config.modules)
+        self.resources.warm_up()
         return self.runtime.prestart()
 
     def set_t0(self, t0_s: float) -> None:
@@ -123,9 +128,11 @@ class HostAgent:
             self._start(now_s)
         self.runtime.tick(now_s)
 
-    def run_wall(self, until_s: float, stop: Callable[[], bool]) -> None:
+    def run_wall(
+        self, until_s: float, stop: Callable[[], bool], beat: Callable[[float], None] | None = None
+    ) -> None:
         self._start(self.clock.now())
-        self.runtime.run_wall(until_s, stop, self.config.tick_s)
+        self.runtime.run_wall(until_s, stop, self.config.tick_s, beat)
 
     def _start(self, now_s: float) -> None:
         # First on the record: what a replay needs to rebuild this host (its configuration), and what

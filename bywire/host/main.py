@@ -35,6 +35,10 @@ from bywire.process_util import StopFlag, wait_for_t0
 from bywire.protocol.bus_url import open_bus
 from bywire.protocol.canopen_link.host_master import HostMaster
 from bywire.protocol.vehicle_can import VehicleCodec
+from bywire.stall_recorder import StallRecorder
+
+STALL_SCHEDULER_S = 0.020  # the scheduler ticks every millisecond: a whole module period without it
+STALL_ECU_LINK_S = 0.050  # the ECU link sends every 20 ms; half the ECU's 100 ms watchdog without it
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -170,6 +174,13 @@ def run_host(
         from bywire.realtime import apply_realtime
 
         print(f"host: real-time: {apply_realtime(priority=args.rt_priority).summary()}", flush=True)
+    # Silences of the scheduler and the ECU link are stalls, recorded with what every thread was doing
+    # (the ECU stops the car after 100 ms without the link).
+    stalls = StallRecorder(
+        "host",
+        {"scheduler": STALL_SCHEDULER_S, "ecu_link": STALL_ECU_LINK_S},
+        rt_priority=args.rt_priority + 1 if args.rt_priority else 0,
+    )
     agent: HostAgent | None = None
     try:
         link = HostMaster(link_bus, clock)
@@ -188,6 +199,7 @@ def run_host(
             vehicle_bus=vehicle_bus,  # type: ignore[arg-type]
             unix_time=lambda now: now + unix_offset,
             objects=objects,
+            heartbeat_sent=lambda now: stalls.beat("ecu_link", now),
         )
         if not agent.prestart():
             print("host: a worker process did not start; the supervisor will keep trying", flush=True)
@@ -212,8 +224,10 @@ def run_host(
         seconds = args.seconds if args.seconds is not None else inputs.duration_s
         end = t0 + seconds if seconds is not None else float("inf")
         clock.sleep_until(t0)
-        agent.run_wall(end, stop)
+        stalls.start()
+        agent.run_wall(end, stop, beat=lambda now: stalls.beat("scheduler", now))
     finally:
+        stalls.close()
         if agent is not None:
             agent.close()
             if args.summary is not None:
@@ -224,6 +238,7 @@ def run_host(
                 urban = agent.urban_summary()
                 if urban:
                     summary["urban"] = urban
+                summary["stalls"] = stalls.summary()
                 args.summary.write_text(json.dumps(summary, indent=1, default=str), encoding="utf-8")
         if recorder is not None:
             recorder.close()

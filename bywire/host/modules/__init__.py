@@ -16,7 +16,8 @@ once from the mission's RNDF/MDF, and the log of the behaviour's states for the 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import importlib
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +52,7 @@ class HostResources:
     # Urban driving (seed 000): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
     objects: Any = None
     faults: HostFaultHooks = field(default_factory=NoFaults)
+    heartbeat_sent: Callable[[float], None] | None = None  # told of every heartbeat (a stall recorder)
 
     # Built once per host (a pyproj frame takes ~0.1 s, a lane map ~1 s): a module's start must not
     # spend its hang bound on them, nor a restart. `prepare_world` builds them before the runtime starts;
@@ -117,6 +119,12 @@ class HostResources:
 
                 compiled_spec()  # the ASN.1 compile (~0.2 s) here, not in the first release
 
+    def warm_up(self) -> None:
+        """First calls that are slow once: the frame's projection builds its transformers lazily."""
+        if self._frame is not None:
+            self._frame.to_local(self._frame.origin_lat_deg, self._frame.origin_lon_deg)
+            self._frame.to_geodetic(0.0, 0.0)
+
     def unix_time_fn(self) -> Callable[[float], float]:
         if self.unix_time is not None:
             return self.unix_time
@@ -176,6 +184,7 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
         res.t0_s,
         request_max_age_s=max_age_ms / 1e3,
         heartbeat_muted=res.faults.heartbeat_muted,
+        heartbeat_sent=getattr(res, "heartbeat_sent", None),
     )
 
 
@@ -415,3 +424,40 @@ KINDS: dict[str, ModuleKind] = {
 def build_isolated(kind: str, params: dict[str, Any]) -> Module:
     """A module of a kind that needs no host resources, in a worker process of its own."""
     return KINDS[kind].build(params, None)
+
+
+# Where each kind is implemented, with what it imports (scipy, clarabel, pyproj, asn1tools ...): a
+# builder imports it on first use, which on wall time is the module's start, inside the first cycles
+# of the run. Seen in HIL: the platoon controller's start held the host's scheduler for 72 ms and its
+# ECU link for 36 ms while scipy built docstrings at import. `import_implementations` before the run.
+IMPLEMENTATIONS: dict[str, tuple[str, ...]] = {
+    "command_script": ("bywire.host.modules.planning.mission",),
+    "scenario_mission": ("bywire.host.modules.planning.mission",),
+    "ecu_rx": ("bywire.host.modules.io.ecu_link",),
+    "ecu_tx": ("bywire.host.modules.io.ecu_link",),
+    "odometry": ("bywire.host.modules.estimation.odometry",),
+    "radar_io": ("bywire.host.modules.io.radar",),
+    "lead_tracker": ("bywire.host.modules.estimation.lead_tracker",),
+    "longitudinal": ("bywire.host.modules.control.longitudinal",),
+    "gps_serial": ("bywire.host.modules.io.gps",),
+    "vehicle_sensors": ("bywire.host.modules.io.vehicle_sensors",),
+    "v2v_rx": ("bywire.host.modules.io.v2v", "bywire.protocol.v2x.receiver"),
+    "v2v_tx": ("bywire.host.modules.io.v2v",),
+    "pose": ("bywire.host.modules.estimation.pose",),
+    "world_model": ("bywire.host.modules.estimation.world_model", "bywire.host.world.radar_fusion"),
+    "platoon_control": ("bywire.host.modules.control.platoon",),
+    "urban_io": ("bywire.host.modules.io.object_link",),
+    "urban_behaviour": (
+        "bywire.host.modules.planning.urban_behaviour",
+        "bywire.host.behaviour.behaviour",
+        "bywire.host.roadnet.route",
+    ),
+    "urban_control": ("bywire.host.modules.control.urban",),
+}
+
+
+def import_implementations(kinds: Iterable[str]) -> None:
+    """Import what the given kinds' builders would import at their first start."""
+    for kind in kinds:
+        for name in IMPLEMENTATIONS.get(kind, ()):
+            importlib.import_module(name)

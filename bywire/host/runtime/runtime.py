@@ -378,15 +378,22 @@ class Runtime:
         return True
 
     def run_wall(
-        self, until_s: float, stop: Callable[[], bool] = lambda: False, tick_s: float = 0.001
+        self,
+        until_s: float,
+        stop: Callable[[], bool] = lambda: False,
+        tick_s: float = 0.001,
+        beat: Callable[[float], None] | None = None,
     ) -> None:
-        """Tick on the clock every `tick_s` until `until_s` (HIL and the car)."""
+        """Tick on the clock every `tick_s` until `until_s` (HIL and the car); `beat(now)` after each
+        tick (a stall recorder's)."""
         next_s = self.clock.now()
         while not stop():
             now = self.clock.now()
             if now >= until_s:
                 break
             self.tick(now)
+            if beat is not None:
+                beat(now)
             next_s += tick_s
             if next_s < now:
                 next_s = now + tick_s

@@ -133,10 +133,12 @@ class EcuTx(Module):
         t0_s: float = 0.0,
         request_max_age_s: float = REQUEST_MAX_AGE_S,
         heartbeat_muted: Callable[[float], bool] | None = None,
+        heartbeat_sent: Callable[[float], None] | None = None,
     ) -> None:
         self.link = link
         # A test harness's door to a host that keeps requesting but has lost its heartbeat thread.
         self.heartbeat_muted = heartbeat_muted
+        self.heartbeat_sent = heartbeat_sent
         self.request_max_age_s = request_max_age_s
         self.trace = trace
         self.t0_s = t0_s
@@ -177,6 +179,8 @@ class EcuTx(Module):
         heartbeat = self.heartbeat_muted is None or not self.heartbeat_muted(now)
         if heartbeat:
             self.link.tick(now)
+            if self.heartbeat_sent is not None:
+                self.heartbeat_sent(now)
         ctx.publish(
             ECU_REQUEST,
             EcuRequestSent(now, accel, steer, int(flags), self.counter, round(age_ms, 3), heartbeat),
