@@ -115,7 +115,7 @@ class StallRecorder:
             self._thread.join(1.0)
 
     def summary(self) -> dict[str, Any]:
-        """The records (the watchdog's private fields left out) and what was dropped past MAX_RECORDS."""
+        """The records kept (the watchdog's private fields left out) and how many were dropped."""
         out = [{k: v for k, v in r.items() if not k.startswith("_")} for r in self.records]
         return {
             "process": self.process,
