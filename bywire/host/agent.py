@@ -131,7 +131,10 @@ class HostAgent:
     def run_wall(
         self, until_s: float, stop: Callable[[], bool], beat: Callable[[float], None] | None = None
     ) -> None:
-        self._start(self.clock.now())
+        # The run's grid starts at t0, the instant every process of the run shares (the runner's, or
+        # the car's start): the runtime's times (`t_rel_s` of its events) and the faults injected at
+        # t0 + at_s then count from the same zero, however late this thread got here.
+        self._start(min(self.t0_s, self.clock.now()))
         self.runtime.run_wall(until_s, stop, self.config.tick_s, beat)
 
     def _start(self, now_s: float) -> None:

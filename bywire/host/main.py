@@ -223,8 +223,8 @@ def run_host(
             agent.store.add_tap(recorder.record)
         seconds = args.seconds if args.seconds is not None else inputs.duration_s
         end = t0 + seconds if seconds is not None else float("inf")
+        stalls.start()  # it records nothing until the first beat
         clock.sleep_until(t0)
-        stalls.start()
         agent.run_wall(end, stop, beat=lambda now: stalls.beat("scheduler", now))
     finally:
         stalls.close()
