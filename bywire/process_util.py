@@ -1,10 +1,12 @@
-"""Small helpers shared by the processes of a run (plant, host): start handshake and clean shutdown."""
+"""Small helpers shared by the processes of a run (plant, host): start handshake, clean shutdown, and what
+Linux says of a thread (/proc: its CPU time and scheduler state)."""
 
 from __future__ import annotations
 
 import signal
 import sys
 import time
+from pathlib import Path
 
 
 def wait_for_t0(arg: str | None) -> float:
@@ -36,3 +38,22 @@ class StopFlag:
 
     def __call__(self) -> bool:
         return self.stop
+
+
+def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
+    """Time a thread has spent on a CPU, in seconds, from /proc/PID/task/TID/schedstat (nanosecond
+    resolution, unlike the 10 ms ticks of /proc/.../stat); None where it cannot be read."""
+    try:
+        return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def task_state(pid: str | int, tid: int) -> str | None:
+    """The scheduler state letter of a thread (R runnable, S sleeping, D uninterruptible, ...), from
+    /proc/PID/task/TID/stat; None where it cannot be read."""
+    try:
+        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+        return stat[stat.rindex(")") + 2]  # the command name in parentheses may hold anything
+    except (OSError, ValueError, IndexError):
+        return None

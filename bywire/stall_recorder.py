@@ -29,27 +29,13 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
+
+from bywire.process_util import task_cpu_time_s, task_state
 
 KEEP_LONGEST = 60  # a run that stalls often keeps its longest stalls ...
 KEEP_LATEST = 60  # ... and its latest ones (a watchdog that fired late in a run); the rest is counted
 STACK_FRAMES = 4  # innermost frames kept per thread
-
-
-def _task_cpu_s(tid: int) -> float | None:
-    try:
-        return int(Path(f"/proc/self/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def _task_state(tid: int) -> str | None:
-    try:
-        stat = Path(f"/proc/self/task/{tid}/stat").read_text()
-        return stat[stat.rindex(")") + 2]
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def _innermost(frame: Any, depth: int = STACK_FRAMES) -> list[str]:
@@ -150,7 +136,7 @@ class StallRecorder:
         cpu: dict[int, float] = {}
         with contextlib.suppress(OSError):
             for entry in os.listdir("/proc/self/task"):
-                v = _task_cpu_s(int(entry))
+                v = task_cpu_time_s("self", int(entry))
                 if v is not None:
                     cpu[int(entry)] = v
         self._cpu_before = cpu
@@ -180,13 +166,13 @@ class StallRecorder:
             tid = idents.get(ident)
             if tid is None or tid == threading.get_native_id():
                 continue
-            cpu = _task_cpu_s(tid)
+            cpu = task_cpu_time_s("self", tid)
             used_ms = None
             if cpu is not None and tid in self._cpu_before:
                 used_ms = round((cpu - self._cpu_before[tid]) * 1e3, 3)
                 total_ms += used_ms
             threads[names.get(tid, str(tid))] = {
-                "state": _task_state(tid),
+                "state": task_state("self", tid),
                 "cpu_ms_since_sample": used_ms,
                 "stack": _innermost(frame),
             }

@@ -46,9 +46,8 @@ from bywire.host.runtime.worker import (
     ModuleFactory,
     WorkerState,
     complete_on_record,
-    task_cpu_time_s,
-    task_state,
 )
+from bywire.process_util import task_cpu_time_s, task_state
 
 POLL_S = 0.05
 SHARE_SAMPLE_S = 0.005

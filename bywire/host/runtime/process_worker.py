@@ -42,9 +42,8 @@ from bywire.host.runtime.worker import (
     below_scheduler,
     complete_on_record,
     describe_exception,
-    task_cpu_time_s,
-    task_state,
 )
+from bywire.process_util import task_cpu_time_s, task_state
 
 # (kind, parameters) -> a fresh module; a module-level function, so that it reaches the child by name.
 ModuleBuilder = Callable[[str, dict[str, Any]], Module]

@@ -40,6 +40,7 @@ from typing import Any, Protocol
 from bywire.clock import Clock
 from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
+from bywire.process_util import task_cpu_time_s, task_state
 
 HISTORY = 1000  # releases kept for execution-time statistics
 
@@ -102,25 +103,6 @@ class Worker(Protocol):
 
 
 ModuleFactory = Callable[[], Module]
-
-
-def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
-    """Time a thread has spent on a CPU, in seconds, from /proc/PID/task/TID/schedstat (nanosecond
-    resolution, unlike the 10 ms ticks of /proc/.../stat); None where it cannot be read."""
-    try:
-        return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def task_state(pid: str | int, tid: int) -> str | None:
-    """The scheduler state letter of a thread (R runnable, S sleeping, D uninterruptible, ...), from
-    /proc/PID/task/TID/stat; None where it cannot be read."""
-    try:
-        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
-        return stat[stat.rindex(")") + 2]  # the command name in parentheses may hold anything
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 MODULE_PRIORITY_BELOW = 2  # real-time priority steps between the scheduler thread and its modules
