@@ -26,6 +26,7 @@ from bywire.host.runtime.log_schema import (
     SCHEMA_ENCODING,
     LogError,
     encode_object,
+    object_time_ns,
     schema_bytes,
     schema_name_of,
     time_ns,
@@ -53,10 +54,7 @@ class LiveView:
 
     def publish(self, topic: str, obj: object) -> None:
         """Publish a dataclass instance with a `t_s` on `topic` (after close: ignored)."""
-        t_s = getattr(obj, "t_s", None)
-        if isinstance(t_s, bool) or not isinstance(t_s, int | float):
-            raise LogError(self.url, f"topic {topic!r}: {type(obj).__name__} has no float t_s to time it")
-        self._publish(topic, obj, time_ns(float(t_s)))
+        self._publish(topic, obj, object_time_ns(obj, self.url, topic))
 
     def publish_frame(self, bus: str, msg: can.Message, t_s: float | None = None) -> None:
         """Publish a CAN frame on `/can/<bus>` as the recorder records it."""

@@ -589,6 +589,15 @@ def time_ns(t_s: float) -> int:
     return _MAX_NS if ns >= _MAX_NS else round(ns)
 
 
+def object_time_ns(obj: object, where: str | os.PathLike[str], topic: str) -> int:
+    """The log time of an object from its `t_s` (what the recorder and the live view stamp); LogError
+    naming `where` and the topic when it has none."""
+    t_s = getattr(obj, "t_s", None)
+    if isinstance(t_s, bool) or not isinstance(t_s, int | float):
+        raise LogError(where, f"topic {topic!r}: {type(obj).__name__} has no float t_s to time it")
+    return time_ns(float(t_s))
+
+
 # -- decoding recorded messages ------------------------------------------------------------------------
 
 

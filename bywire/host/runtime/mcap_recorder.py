@@ -41,6 +41,7 @@ from bywire.host.runtime.log_schema import (
     SCHEMA_ENCODING,
     LogError,
     encode_object,
+    object_time_ns,
     schema_bytes,
     schema_name_of,
     time_ns,
@@ -142,10 +143,7 @@ class McapRecorder:
 
     def record(self, topic: str, obj: object) -> None:
         """Record a dataclass instance with a `t_s` on `topic` (log time from `t_s`)."""
-        t_s = getattr(obj, "t_s", None)
-        if isinstance(t_s, bool) or not isinstance(t_s, int | float):
-            raise LogError(self.path, f"topic {topic!r}: {type(obj).__name__} has no float t_s to time it")
-        self._record(topic, obj, time_ns(float(t_s)))
+        self._record(topic, obj, object_time_ns(obj, self.path, topic))
 
     def record_frame(self, bus: str, msg: can.Message, t_s: float | None = None) -> None:
         """Record a CAN frame on `/can/<bus>`; log time = `t_s` if given, else the frame's timestamp."""
