@@ -47,16 +47,13 @@ from bywire.protocol.vehicle_can import VehicleCodec
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001
+RADAR_MESSAGES = ("RADAR_Target",)
+ODOMETRY_MESSAGES = ("GW_WheelSpeeds", "GW_Motion")
 
 
-def _filters(*messages: str) -> list[dict[str, Any]]:
+def _filters(dbc: VehicleCodec, messages: tuple[str, ...]) -> list[dict[str, Any]]:
     """python-can receive filters passing exactly these DBC messages."""
-    dbc = VehicleCodec()
     return [{"can_id": dbc.info(m).frame_id, "can_mask": 0x7FF, "extended": False} for m in messages]
-
-
-RADAR_FILTER = _filters("RADAR_Target")
-ODOMETRY_FILTER = _filters("GW_WheelSpeeds", "GW_Motion")
 
 
 @dataclass
@@ -136,12 +133,16 @@ def run_sil(
             t0_s=0.0,
             config=load_host_config(scenario.host_config),
             faults=ModuleFaultInjector(scenario, 0.0),
-            sensor_bus=bus(vehicle_ch, can_filters=RADAR_FILTER),
+            sensor_bus=bus(vehicle_ch, can_filters=_filters(plant.codec, RADAR_MESSAGES)),
             trace=host_trace,
             clock=clock,
             v2x=v2x_host,
             gps=gps_pipe,
-            vehicle_bus=bus(vehicle_ch, can_filters=ODOMETRY_FILTER) if world is not None else None,
+            vehicle_bus=(
+                bus(vehicle_ch, can_filters=_filters(plant.codec, ODOMETRY_MESSAGES))
+                if world is not None
+                else None
+            ),
             unix_time=(lambda now: world.v2v.epoch_unix_s + now) if world is not None else None,
             objects=objects_link,
         )
