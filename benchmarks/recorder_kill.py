@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import random
 import signal
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -21,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks.run import distribution
 from bywire.host.runtime.mcap_reader import read_objects
 
 FLUSH_INTERVAL_S = 0.1
@@ -63,7 +63,7 @@ def _newest_wall_s(path: Path) -> float | None:
 
 def run(runs: int = 8, seed: int = 1) -> dict[str, Any]:
     rng = random.Random(seed)
-    lost_ms: list[float] = []
+    lost_s: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bywire-bench-kill-") as tmp:
         for k in range(runs):
             path = Path(tmp) / f"kill{k}.mcap"
@@ -83,20 +83,19 @@ def run(runs: int = 8, seed: int = 1) -> dict[str, Any]:
                 child.kill()
             newest = _newest_wall_s(path)
             if newest is not None:
-                lost_ms.append((killed_at - newest) * 1e3)
-    if not lost_ms:
+                lost_s.append(killed_at - newest)
+    if not lost_s:
         return {"runs": runs, "error": "no readable tick in any run"}
-    ordered = sorted(lost_ms)
-    p99 = ordered[min(len(ordered) - 1, round(0.99 * (len(ordered) - 1)))]
+    d = distribution(lost_s)  # the same p99 as every other row of the benchmarks
     base_ms = FLUSH_INTERVAL_S * 1e3
     return {
         "runs": runs,
         "flush_interval_ms": base_ms,
-        "lost_p50_ms": statistics.median(lost_ms),
-        "lost_p99_ms": p99,
-        "lost_max_ms": ordered[-1],
-        "ratio_p50": statistics.median(lost_ms) / base_ms,
-        "ratio_max": ordered[-1] / base_ms,
+        "lost_p50_ms": d["median_us"] / 1e3,
+        "lost_p99_ms": d["p99_us"] / 1e3,
+        "lost_max_ms": d["max_us"] / 1e3,
+        "ratio_p50": d["median_us"] / 1e3 / base_ms,
+        "ratio_max": d["max_us"] / 1e3 / base_ms,
     }
 
 
