@@ -21,6 +21,7 @@ import pytest
 from ecu_rig import WallRig
 from shared_data import shared_data_dir
 
+from bywire.hil.runner import free_udp_port
 from bywire.host.roadnet.network import load_network
 from bywire.host.trace import HOST_COLUMNS, read_trace
 from bywire.protocol.bus_url import open_bus
@@ -39,12 +40,6 @@ with open(sys.argv[1], "w") as f:
     json.dump(sorted(m for m in sys.modules if m.startswith("bywire")), f)
 sys.exit(rc)
 """
-
-
-def _port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Localisation:
@@ -74,7 +69,7 @@ def test_host_drives_the_darpa_sample_mission_from_a_car_command_line(tmp_path: 
     graph, mission = load_network(RNDF, MDF)
     start = graph.vertex_pose(graph.checkpoint_vertex(mission.checkpoint_numbers[0]))
     assert start is not None
-    ecu_port, host_port, objects_port = _port(), _port(), _port()
+    ecu_port, host_port, objects_port = free_udp_port(), free_udp_port(), free_udp_port()
     summary, modules_file, trace = tmp_path / "summary.json", tmp_path / "modules.json", tmp_path / "host.csv"
     localisation = Localisation(objects_port, (start.x_m, start.y_m, start.heading_rad))
     ecu_link = open_bus(f"udp://127.0.0.1:{ecu_port}?peer=127.0.0.1:{host_port}")

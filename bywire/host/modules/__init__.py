@@ -184,7 +184,7 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
         res.t0_s,
         request_max_age_s=max_age_ms / 1e3,
         heartbeat_muted=res.faults.heartbeat_muted,
-        heartbeat_sent=getattr(res, "heartbeat_sent", None),
+        heartbeat_sent=res.heartbeat_sent,
     )
 
 

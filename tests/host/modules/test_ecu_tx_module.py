@@ -33,7 +33,7 @@ class _Link:
 
 def _module(params: dict[str, Any]) -> tuple[Any, _Link, ModuleContext, ObjectStore]:
     link = _Link()
-    res = SimpleNamespace(link=link, trace=None, t0_s=0.0, faults=NoFaults())
+    res = SimpleNamespace(link=link, trace=None, t0_s=0.0, faults=NoFaults(), heartbeat_sent=None)
     kind = KINDS["ecu_tx"]
     module = kind.build(params, res)  # type: ignore[arg-type]
     spec = ModuleSpec("ecu_tx", kind.inputs, kind.outputs, period_s=kind.period_s, deadline_s=kind.deadline_s)
