@@ -156,8 +156,9 @@ class StallRecorder:
     def _record(self, name: str, ch: _Channel, now_s: float, late_s: float) -> None:
         self._prune()
         assert ch.last_s is not None
-        names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
-        idents = {t.ident: t.native_id for t in threading.enumerate()}
+        alive = threading.enumerate()
+        names = {t.native_id: t.name for t in alive if t.native_id is not None}
+        idents = {t.ident: t.native_id for t in alive}
         frames = sys._current_frames()
         threads: dict[str, Any] = {}
         total_ms = 0.0
