@@ -97,7 +97,30 @@ COMMANDS: tuple[Command, ...] = (
         "moving-traffic check, intersection precedence, lateral controller, HSM step (seed 000)",
         "benchmarks.urban",
     ),
+    Command(
+        "bench perception",
+        "LIDAR grid, objects, tracking, markers per KITTI scan; the simulated LIDAR cast (seed 000 4-6)",
+        "benchmarks.perception",
+    ),
+    Command(
+        "bench hil",
+        "the three-process HIL under a standard background load: period gaps, heartbeat gaps, spurious stops",
+        "benchmarks.hil_load",
+    ),
     Command("log", "recordings (MCAP): info, plot, replay", "bywire.cli", "log"),
+    Command("perception", "LIDAR perception tools (seed 000 sections 4-6)", metavar="COMMAND"),
+    Command(
+        "perception grid",
+        "the occupancy grid of one Velodyne scan (KITTI .bin): PNG and JSON",
+        "bywire.host.perception.perception_cli",
+        "grid",
+    ),
+    Command(
+        "perception track-eval",
+        "our tracker on KITTI tracking detections, scored with CLEAR-MOT against the labels",
+        "bywire.host.perception.perception_cli",
+        "track_eval",
+    ),
     Command("platoon", "platoon tools (cooperative driving, seed 003)", metavar="COMMAND"),
     Command(
         "platoon string-stability",
