@@ -73,6 +73,30 @@ class PoseSpec:
 
 
 @dataclass(frozen=True)
+class BuildingSpec:
+    """A box standing beside the road (a building; a thin one is a wall), centred at (`x_m`, `y_m`) with
+    its length along `heading_deg`. Only the simulated LIDAR sees it (`hil.lidar`): the collision
+    bookkeeping and the object list know vehicles, so anything on the road is a `parked` car."""
+
+    x_m: float
+    y_m: float
+    length_m: float
+    width_m: float
+    height_m: float = 10.0
+    heading_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class ScenerySpec:
+    """What the simulated LIDAR sees besides the road and the vehicles (`hil.lidar.urban_scene`)."""
+
+    # 0: no curbs; else a curb this high along the road's outer edges (AnnieWAY detected curbs as small
+    # height steps in the range data, seed 000 Sec. 6; 10-15 cm is a kerb's usual height)
+    curb_height_m: float = 0.0
+    buildings: tuple[BuildingSpec, ...] = ()
+
+
+@dataclass(frozen=True)
 class UrbanSpec:
     rndf: str  # resolved absolute path
     mdf: str
@@ -85,6 +109,7 @@ class UrbanSpec:
     stop_tolerance_m: float = 1.0  # rules 5.2: front bumper within 1 m of the stop line
     ego_length_m: float = 4.77
     ego_width_m: float = 1.82
+    scenery: ScenerySpec = ScenerySpec()
 
 
 def shared_data_root() -> Path:
@@ -166,6 +191,31 @@ def _vehicle(r: Reader) -> UrbanVehicleSpec:
     return UrbanVehicleSpec(**kw)
 
 
+def _scenery(r: Reader) -> ScenerySpec:
+    raw = r.raw("buildings", []) or []
+    if not isinstance(raw, list):
+        raise r.error("buildings", "expected a list of buildings")
+    buildings = []
+    for i, item in enumerate(raw):
+        b = type(r)(item, r.source, r._p(f"buildings[{i}]"))
+        buildings.append(
+            BuildingSpec(
+                x_m=b.number("x_m", lo=-1e6, hi=1e6),
+                y_m=b.number("y_m", lo=-1e6, hi=1e6),
+                length_m=b.number("length_m", lo=0.1, hi=1000.0),
+                width_m=b.number("width_m", lo=0.1, hi=1000.0),
+                height_m=b.number("height_m", default=10.0, lo=0.1, hi=500.0),
+                heading_deg=b.number("heading_deg", default=0.0, lo=-360.0, hi=360.0),
+            )
+        )
+        b.finish()
+    spec = ScenerySpec(
+        curb_height_m=r.number("curb_height_m", default=0.0, lo=0.0, hi=0.5), buildings=tuple(buildings)
+    )
+    r.finish()
+    return spec
+
+
 def parse_urban(
     data: Any, source: str, path: str = "urban", error_type: type[SchemaError] = UrbanSpecError
 ) -> UrbanSpec:
@@ -214,14 +264,17 @@ def parse_urban(
         trace_hz=r.number("trace_hz", default=10.0, lo=1.0, hi=100.0),
         speed_tolerance_mps=r.number("speed_tolerance_mps", default=0.5, lo=0.0, hi=10.0),
         stop_tolerance_m=r.number("stop_tolerance_m", default=1.0, lo=0.1, hi=10.0),
+        scenery=_scenery(r.sub("scenery")),
     )
     r.finish()
     return spec
 
 
 __all__ = [
+    "BuildingSpec",
     "ObjectsSpec",
     "PoseSpec",
+    "ScenerySpec",
     "UrbanSpec",
     "UrbanSpecError",
     "UrbanVehicleSpec",
