@@ -17,8 +17,12 @@ silent for longer than its gap it records, once per stall:
 - `process_cpu_ms`: CPU time of all threads since that sample; with the gap, the share of a CPU the
   process got while it was stalled.
 
-The recorder costs one clock read per beat and, every `sample_s`, one read of /proc per thread. It never
-blocks a beating thread: beats are plain stores, the watchdog does everything else.
+Every channel also keeps the distribution of its gaps between beats (`rhythm.GapHistogram`): the
+rhythm a run kept, not only the times it broke (`summary()["rhythm_ms"]`: p50, p99, p99.9, max).
+
+The recorder costs one clock read and one histogram increment per beat and, every `sample_s`, one read
+of /proc per thread. It never blocks a beating thread: beats are plain stores, the watchdog does
+everything else.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bywire.process_util import task_cpu_time_s, task_state
+from bywire.rhythm import GapHistogram
 
 KEEP_LONGEST = 60  # a run that stalls often keeps its longest stalls ...
 KEEP_LATEST = 60  # ... and its latest ones (a watchdog that fired late in a run); the rest is counted
@@ -56,6 +61,7 @@ class _Channel:
     gap_s: float
     last_s: float | None = None
     open_record: dict[str, Any] | None = None  # the stall being recorded on this channel
+    rhythm: GapHistogram = field(default_factory=GapHistogram)
 
 
 @dataclass
@@ -82,6 +88,8 @@ class StallRecorder:
         """The channel's work happened now (cheap: a store; the watchdog does the rest)."""
         ch = self._channels[channel]
         t = self.clock() if now_s is None else now_s
+        if ch.last_s is not None:
+            ch.rhythm.add(t - ch.last_s, t)
         ch.last_s = t
         rec = ch.open_record
         if rec is not None:  # the stall is over: its length, as the watchdog reads it next
@@ -108,6 +116,7 @@ class StallRecorder:
             "gaps_ms": {k: v * 1e3 for k, v in self.gaps_s.items()},
             "stalls": out,
             "dropped": self.dropped,
+            "rhythm_ms": {name: ch.rhythm.to_json() for name, ch in self._channels.items()},
         }
 
     # -- the watchdog ------------------------------------------------------------------------------

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
 import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from bywire.hil.stall_report import culprits, watchdog_stops
 from bywire.protocol.ecu_types import EcuState, Fault
+from bywire.rhythm import GapHistogram
 from bywire.stall_recorder import StallRecorder
 
 
@@ -94,3 +99,39 @@ def test_a_watchdog_fault_is_joined_with_the_stalls_open_before_it() -> None:
     (r,) = c["stalls"]["host"]
     assert r["busiest_thread"] == "module-world_model#1" and r["suspect_stack"] == ["qp.py:10 solve"]
     assert culprits(None, {"host": host}, t0) == []
+
+
+def test_a_stop_whose_engagement_the_trace_never_saw_is_still_a_stop() -> None:
+    """The host samples the ECU's status at 10 Hz: READY then SAFE_STOP is an engagement cut short."""
+    t = np.arange(0.0, 1.0, 0.1)
+    state = np.full_like(t, int(EcuState.READY))
+    state[t >= 0.45] = int(EcuState.SAFE_STOP)
+    faults = np.where(t >= 0.45, int(Fault.HOST_HEARTBEAT | Fault.REQUEST_INVALID), 0)
+    stops = watchdog_stops({"t_s": t, "ecu_faults": faults, "ecu_state": state})
+    assert stops == [("HOST_HEARTBEAT|REQUEST_INVALID", t[t >= 0.45][0])]
+
+
+def test_the_rhythm_of_a_channel_is_its_gap_distribution() -> None:
+    rec = StallRecorder("host", {"scheduler": 0.02})
+    for k in range(1000):  # a 1 ms rhythm on a simulated clock, with one 30 ms hole
+        rec.beat("scheduler", k * 1e-3 + (0.029 if k >= 500 else 0.0))
+    rhythm = rec.summary()["rhythm_ms"]["scheduler"]
+    assert rhythm["count"] == 999 and rhythm["max"] == pytest.approx(30.0)
+    assert rhythm["p50"] == pytest.approx(1.0, abs=0.11) and rhythm["p99"] == pytest.approx(1.0, abs=0.11)
+    assert rhythm["max_at_s"] == pytest.approx(0.529)
+    merged = GapHistogram.from_json(rhythm)
+    merged.merge(GapHistogram.from_json(rhythm))
+    assert merged.summary() == {**{k: rhythm[k] for k in ("p50", "p99", "p999", "max")}, "count": 1998}
+
+
+@given(st.lists(st.floats(0.0, 2.0), min_size=1, max_size=300), st.floats(0.0, 1.0))
+def test_a_gap_quantile_is_within_one_bin_of_the_exact_one(gaps_s: list[float], q: float) -> None:
+    h = GapHistogram()
+    for g in gaps_s:
+        h.add(g)
+    ordered = sorted(gaps_s)
+    exact_ms = ordered[max(1, math.ceil(q * len(ordered) - 1e-9)) - 1] * 1e3
+    got_ms = h.quantile_ms(q)
+    assert got_ms <= max(ordered) * 1e3 + 1e-3  # reported to the microsecond
+    if exact_ms < 1000.0:  # beyond the span only the maximum is exact
+        assert exact_ms - 1e-3 <= got_ms <= exact_ms + 0.1 + 1e-3

@@ -550,6 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         snapshot["final_state"] = app.core.safety.state.name
         snapshot["vehicle_rx"] = app.rx_stats()["total"]
         snapshot["health"] = app.health_summary()
+        snapshot["host_link"] = app.node.host_rhythm()
         if args.stats_json is not None:
             args.stats_json.parent.mkdir(parents=True, exist_ok=True)
             args.stats_json.write_text(json.dumps(snapshot, indent=2) + "\n", encoding="utf-8")

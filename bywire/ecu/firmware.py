@@ -80,7 +80,7 @@ RUNTIME_DISTRIBUTIONS: tuple[str, ...] = ("python-can", "python-can-remote", "ca
 
 # Files of bywire itself, per package: glob patterns relative to the package directory.
 _BYWIRE_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("bywire", ("__init__.py", "clock.py", "realtime.py")),
+    ("bywire", ("__init__.py", "clock.py", "realtime.py", "rhythm.py")),
     # The protocol's top level, and of its subpackages only what the ECU's end of the CANopen link
     # needs. The host's (canopen_link/host_master.py: the host's master; protocol/v2x: V2V messages,
     # which the ECU never speaks, and whose asn1tools is not among the image's distributions) stay out.

@@ -21,15 +21,19 @@ LOOKBACK_S = 0.3  # the ECU's watchdog times (100-200 ms) plus the status' way b
 
 def watchdog_stops(host_trace: dict[str, np.ndarray], limit: int = 5) -> list[tuple[str, float]]:
     """(fault names, run time) of each stop of an engaged car in which a watchdog fault was set, as
-    the host saw the ECU's status (faults before the first engagement are start-up, not stops)."""
+    the host saw the ECU's status (faults before the first engagement are start-up, not stops). A
+    stop is the end of ENGAGED or the start of SAFE_STOP: the host's trace samples the status at
+    10 Hz, and an engagement shorter than that shows only as READY followed by SAFE_STOP."""
     state = host_trace["ecu_state"].astype(int)
     faults = host_trace["ecu_faults"].astype(int)
     mask = 0
     for f in WATCHDOG_FAULTS:
         mask |= int(f)
-    engaged = int(EcuState.ENGAGED)
+    engaged, safe_stop = int(EcuState.ENGAGED), int(EcuState.SAFE_STOP)
+    ended = (state[:-1] == engaged) & (state[1:] != engaged)
+    stopped = (state[:-1] != safe_stop) & (state[1:] == safe_stop)
     out = []
-    for i in np.flatnonzero((state[:-1] == engaged) & (state[1:] != engaged)) + 1:
+    for i in np.flatnonzero(ended | stopped) + 1:
         hit = int(faults[i]) & mask
         if hit:
             names = "|".join(str(f.name) for f in WATCHDOG_FAULTS if hit & int(f))

@@ -107,6 +107,7 @@ from bywire.protocol.host_link import (
     encode_emcy,
     error_register_for,
 )
+from bywire.rhythm import GapHistogram
 
 log = logging.getLogger(__name__)
 
@@ -207,6 +208,11 @@ class EcuNode:
         self.network.subscribe(self.rpdo.cob_id, self._on_rpdo)
 
         self.request_stats = RequestStats()
+        # The host's rhythm as this node hears it (receive stamps): what the watchdogs judge.
+        self.heartbeat_gaps = GapHistogram()
+        self.request_gaps = GapHistogram()
+        self._heartbeat_rx_s: float | None = None
+        self._request_rx_s: float | None = None
         self.nmt_rejected = 0
         self.sdo_rejected = 0
         self.dispatch_errors = 0
@@ -314,6 +320,14 @@ class EcuNode:
             return False
         return to_us(now_s) - self._latest_us <= self.request_deadline_ms * 1000
 
+    def host_rhythm(self) -> dict[str, Any]:
+        """The gaps between the host's heartbeats and between its accepted requests, as received
+        (ms: count, p50, p99, p999, max, and when the longest ended on the node's clock)."""
+        return {
+            "heartbeat_gap_ms": {**self.heartbeat_gaps.summary(), "max_at_s": self.heartbeat_gaps.max_at_s},
+            "request_gap_ms": {**self.request_gaps.summary(), "max_at_s": self.request_gaps.max_at_s},
+        }
+
     def host_alive(self, now_s: float) -> bool:
         """Host heartbeat fresh within 0x1016's time AND the host reports OPERATIONAL."""
         return self.host_heartbeat.alive(now_s, _OPERATIONAL_ONLY)
@@ -395,6 +409,9 @@ class EcuNode:
     def _on_host_heartbeat(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         # Judged by its receive time: a heartbeat queued during a stall is as old as it is.
         self.host_heartbeat.on_frame(data, timestamp)
+        if self._heartbeat_rx_s is not None:
+            self.heartbeat_gaps.add(timestamp - self._heartbeat_rx_s, timestamp)
+        self._heartbeat_rx_s = timestamp
 
     def _on_rpdo(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         stats = self.request_stats
@@ -425,6 +442,9 @@ class EcuNode:
             stats.lost += delta - 1
         self._last_counter = request.counter
         stats.accepted += 1
+        if self._request_rx_s is not None:
+            self.request_gaps.add(timestamp - self._request_rx_s, timestamp)
+        self._request_rx_s = timestamp
         self._latest = (request, timestamp)
         self._latest_us = to_us(timestamp)
         for (index, subindex), name in self._request_keys:
