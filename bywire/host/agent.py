@@ -103,7 +103,15 @@ class HostAgent:
     def _factory(self, kind: str, params: dict[str, Any]) -> Callable[[], Module]:
         build = KINDS[kind].build
         resources = self.resources
-        return lambda: build(params, resources)
+
+        def make() -> Module:
+            module = build(params, resources)
+            # On the module's own thread (the factory runs there): pyproj keeps a transformer per
+            # thread and builds it at its first use in that thread, 100 ms holding the GIL.
+            resources.warm_up()
+            return module
+
+        return make
 
     def prestart(self) -> bool:
         """Before the run: import what the modules' builders import and start the worker processes

@@ -21,10 +21,6 @@ def test_gcdc_heat_in_three_processes(tmp_path: Path) -> None:
     doc = yaml.safe_load(builtin_scenarios()["gcdc_heat"].read_text())
     doc["name"] = "gcdc_heat_hil"
     doc["duration_s"] = 60.0
-    # Engage once every process is past its start-up: in the first second the host has been seen to
-    # miss its 20 ms rhythm by up to ~95 ms while five processes start on two cores (the ECU, rightly,
-    # stops a car it was driving when the heartbeat is that late); a driver engages after start-up too.
-    doc["host"]["engage_at_s"] = 3.0
     doc["world"]["gps"]["outages"][1]["at_s"] = 40.0  # our own bridge, inside the 60 s
     # The spectral estimate needs the whole 300 s heat, the speed-limit zone comes at ~280 s: judged in SIL.
     doc["checks"] = [

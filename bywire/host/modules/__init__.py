@@ -120,7 +120,8 @@ class HostResources:
                 compiled_spec()  # the ASN.1 compile (~0.2 s) here, not in the first release
 
     def warm_up(self) -> None:
-        """First calls that are slow once: the frame's projection builds its transformers lazily."""
+        """First calls that are slow once: the frame's projection builds its transformers lazily, and
+        pyproj builds them once per thread (call it on each module's thread)."""
         if self._frame is not None:
             self._frame.to_local(self._frame.origin_lat_deg, self._frame.origin_lon_deg)
             self._frame.to_geodetic(0.0, 0.0)

@@ -5,10 +5,11 @@ module is released at `start + k * period`, a triggered one on every new object 
 topic; each release runs on the module's worker and is measured (execution time, completion,
 deadline miss, overrun when the previous release is still running). The modules due at one tick
 form a chain, released in dependency order, each waited for: in lockstep (SIL, replay) until it is
-done, so a run is deterministic; on wall time (HIL, the car) until its deadline. A module still busy
-then holds back its consumers for this cycle instead of letting them run on old data, except the
-sinks that must run every period (`always_release`: the ECU link, whose heartbeat is the host's
-sign of life to the ECU's watchdog); the rest of the chain goes on (see `tick`).
+done, so a run is deterministic; on wall time (HIL, the car) for a few milliseconds at most
+(`CHAIN_WAIT_S`). A module still busy holds back its consumers until it is done, instead of
+letting them run on old data; they are released the moment it completes. The sinks that must run
+every period (`always_release`: the ECU link, whose heartbeat is the host's sign of life to the
+ECU's watchdog) are never held and never wait behind a computing module (see `tick`).
 
 Supervision — the watchdog AnnieWAY lacked (seed 000 section 12: a module hung after an exception,
 its process stayed alive, and a watchdog that only checked that processes existed never noticed).
@@ -62,6 +63,13 @@ from bywire.host.runtime.worker import ModuleFactory, ThreadWorker, Worker
 
 log = logging.getLogger("bywire.supervisor")
 
+# On wall time one tick waits at most this long, in all, for the modules it releases: the fast
+# chain still runs in one tick (status -> controller -> request), while a module that computes
+# longer (a world model's transforms, a QP) is left running and its consumers follow it when it is
+# done. The ECU link, last in the chain, is then never more than this late for its 20 ms period,
+# whatever the computing modules do: a late controller is a stale request, which the link answers
+# with a controlled stop, never a missing heartbeat (DESIGN section 4: the two faults differ).
+CHAIN_WAIT_S = 0.004
 MIN_SPIN_SAMPLE_S = 0.005  # real time over which a hung worker's CPU use is judged
 SPIN_CPU_SHARE = 0.2  # a hung worker using more than this share of a CPU is spinning, not blocked
 START_TIMEOUT_S = 30.0  # wall time a worker may take to start (a process worker imports numpy...)
@@ -108,6 +116,8 @@ class Entry:
     state: str = "starting"
     release_k: int = 0
     pending: bool = False
+    owed_tick: int | None = None  # the tick of a release held back while a producer computed
+    released_tick: int = -1  # the tick of its newest release
     trigger_sub: Subscription[Any] | None = None
     restart_at_s: float | None = None
     restart_times: deque[float] = field(default_factory=deque)
@@ -174,6 +184,8 @@ class Runtime:
         self.entries: dict[str, Entry] = {}
         self._order: list[Entry] = []
         self._consumers: dict[str, frozenset[str]] = {}  # per module: whose inputs derive from its outputs
+        self._producers: dict[str, tuple[Entry, ...]] = {}  # per module: whose outputs its inputs derive from
+        self._tick_n = 0
         self.events: list[SupervisorEvent] = []
         self.start_s: float | None = None
         self._next_health_s = 0.0
@@ -204,20 +216,22 @@ class Runtime:
         return [e.spec for e in self.entries.values()]
 
     def prestart(self, timeout_s: float = START_TIMEOUT_S) -> bool:
-        """Start the process workers ahead of the run and wait until they are ready.
+        """Start the workers ahead of the run and wait until they are ready.
 
         A worker process takes about a second to start (a Python interpreter importing numpy and
-        the project), on the same cores as everything else: done during the run, it would coincide
-        with the first seconds of driving. Their release grid still begins at `start`.
+        the project), on the same cores as everything else; a module's constructor and `start` may
+        load files or build native objects (holding the GIL for tens of ms): done during the run,
+        either would coincide with the first cycles of driving. Their release grid still begins at
+        `start`.
         """
         self._plan()
         ready = True
-        for e in self.entries.values():
-            if e.spec.isolation == "process" and e.worker is None:
+        for e in self._order:
+            if e.worker is None:
                 self._spawn(e, 0.0)
-        for e in self.entries.values():
+        for e in self._order:
             wait = getattr(e.worker, "wait_started", None)
-            if e.spec.isolation == "process" and wait is not None:
+            if wait is not None:
                 ready = wait(timeout_s) and ready
         return ready
 
@@ -240,6 +254,11 @@ class Runtime:
             return
         self._order = [self.entries[s.name] for s in dependency_order(self.specs)]
         self._consumers = {s.name: frozenset(dependants(self.specs, s.name)) for s in self.specs}
+        producers: dict[str, list[Entry]] = {}
+        for e in self._order:
+            for consumer in self._consumers[e.spec.name]:
+                producers.setdefault(consumer, []).append(e)
+        self._producers = {name: tuple(p) for name, p in producers.items()}
 
     def _spawn(self, e: Entry, now_s: float) -> None:
         e.generation += 1
@@ -255,6 +274,7 @@ class Runtime:
             e.release_k = max(e.release_k, math.ceil((now_s - self.start_s) / e.spec.period_s - 1e-9))
         e.trigger_sub = self.store.subscribe(e.spec.trigger) if e.spec.trigger else None
         e.pending = False
+        e.owed_tick = None
         e.started_s = now_s
         e.busy_mark = None
         e.seen_completed = 0
@@ -284,13 +304,15 @@ class Runtime:
 
         The wait makes a cycle's modules a chain (the controller sees this cycle's status, the link
         sends this cycle's request): in lockstep it lasts until the step is done (deterministic
-        runs); on wall time until the module's deadline. A module not done by then holds back its
-        consumers for this cycle rather than letting them run on the previous cycle's data, so the
-        data flow stays causal and a recording of a wall-time run replays exactly; the supervisor
-        judges the late module at `hang_after_s`. The chain never waits longer than a deadline per
-        module: the ECU link (`always_release`) keeps sending its heartbeat and the newest request
-        (which it refuses once too old, asking for a controlled stop instead), so a module that is
-        late or restarting cannot make the host look dead to the ECU's watchdog.
+        runs); on wall time `CHAIN_WAIT_S` in all. A module still computing (late in this tick, or
+        released earlier and not done) holds back its consumers rather than letting them run on
+        data it is about to replace, so the data flow stays causal and a recording of a wall-time
+        run replays exactly; a held release is owed, and runs in the first tick after its producers
+        are done (its release time is then, so its age says how late it is). The supervisor judges
+        the computing module at its deadline and `hang_after_s`. The ECU link (`always_release`) is
+        never held: it sends its heartbeat and the newest request every period (refusing one too
+        old, asking for a controlled stop instead), so a module that is late or restarting cannot
+        make the host look dead to the ECU's watchdog.
 
         Supervision comes after the releases, so everything the supervisor publishes at `now_s`
         (limits, stop requests, events, restarts) takes effect from the next releases on: a replay
@@ -300,7 +322,8 @@ class Runtime:
             self.injector.tick(self, now_s)
         if self.lockstep and now_s < self._quiet_until_s:
             return  # lockstep fast path: nothing is due, running or failing (see _quiet_until)
-        held: set[str] = set()  # consumers of a module that is late in this cycle's chain
+        self._tick_n += 1
+        wait_until = None if self.lockstep else self.clock.now() + CHAIN_WAIT_S
         for e in self._order:
             w = e.worker
             if w is None or e.state in ("restarting", "stopped", "failed"):
@@ -309,24 +332,27 @@ class Runtime:
                 if not w.ready():
                     continue
                 e.state = "running"
-            if not self._due(e, now_s):
+            due = self._due(e, now_s)
+            if not due and e.owed_tick is None:
                 continue
-            if e.spec.name in held and not e.spec.always_release:
-                # Its input of this cycle is still being computed: no release on the previous
-                # cycle's data (the run stays causal, so it replays exactly); the next cycle will do.
-                w.stats.skipped += 1
+            since = self._tick_n if e.owed_tick is None else e.owed_tick
+            if not e.spec.always_release and self._input_computing(e, since):
+                # Its input is still being computed: released when that is done, never on the data
+                # it replaces (the run stays causal, so it replays exactly). Only what was released
+                # by the tick it became due holds it, so a busy producer that keeps being triggered
+                # cannot starve it; due again meanwhile is one release lost, counted as an overrun.
+                if due and e.owed_tick is not None and e.spec.trigger is None:
+                    w.stats.skipped += 1
+                e.owed_tick = since
                 e.pending = False
                 continue
+            e.owed_tick = None
             if w.release(now_s):
-                if self.lockstep:
+                e.released_tick = self._tick_n
+                if wait_until is None:
                     w.wait_done(self.lockstep_timeout_s)
-                elif not w.wait_done(e.spec.deadline_s):
-                    # Late: sample its CPU time now, so a hang can be told from a deadlock at once,
-                    # and go on with the chain: the supervisor judges it at `hang_after_s`.
-                    e.busy_mark = (time.perf_counter(), w.cpu_time_s(), w.busy_since_s or now_s)
-                    held.update(self._consumers.get(e.spec.name, ()))
-            elif w.busy_since_s is not None:
-                held.update(self._consumers.get(e.spec.name, ()))  # still busy with an earlier release
+                else:
+                    w.wait_done(min(e.spec.deadline_s, max(0.0, wait_until - self.clock.now())))
             e.pending = False
         self.supervise(now_s)
         if now_s >= self._next_health_s:
@@ -336,6 +362,22 @@ class Runtime:
             )
         if self.lockstep:
             self._quiet_until_s = self._quiet_until(now_s)
+
+    def _input_computing(self, e: Entry, since_tick: int) -> bool:
+        """Whether a module that `e`'s inputs derive from is still computing a release of tick
+        `since_tick` or earlier (never in lockstep, where each release is waited for until done)."""
+        if self.lockstep:
+            return False
+        for p in self._producers.get(e.spec.name, ()):
+            w = p.worker
+            if (
+                w is not None
+                and w.busy_since_s is not None
+                and p.released_tick <= since_tick
+                and p.state in ("running", "degraded")
+            ):
+                return True
+        return False
 
     def _quiet_until(self, now_s: float) -> float:
         """In lockstep nothing happens between ticks except what the scheduler starts: until the next

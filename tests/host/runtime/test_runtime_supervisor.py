@@ -263,6 +263,18 @@ class SlowReader(Module):
         ctx.publish("/slow", Tick(ctx.now_s, len(self.seen)))
 
 
+class SlowConsumer(Module):
+    """Logs its release time and the /slow object it computes on."""
+
+    def __init__(self, log: list[tuple[float, float]]) -> None:
+        self.log = log
+
+    def step(self, ctx: ModuleContext) -> None:
+        tick = ctx.latest("/slow")
+        self.log.append((ctx.now_s, tick.t_s if tick is not None else -1.0))
+        ctx.publish("/consumer", Tick(ctx.now_s, len(self.log)))
+
+
 class Sink(Module):
     def __init__(self, log: list[float]) -> None:
         self.log = log
@@ -273,9 +285,10 @@ class Sink(Module):
 
 
 def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_consumers() -> None:
-    """Wall time (HIL, the car): the chain waits a module's deadline, not longer. A late module
+    """Wall time (HIL, the car): the chain waits a few milliseconds, not longer. A late module
     computes on the store as of its release (never on what was published while it ran late); a
-    consumer of it waits for the next cycle; a sink that must run every period (the ECU link) does."""
+    consumer of it waits until it is done and then computes on its newest output (never on the one
+    being replaced); a sink that must run every period (the ECU link) runs every period."""
     from bywire.clock import WallClock
 
     clock = WallClock()
@@ -283,7 +296,7 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     rt = Runtime(store, clock, lockstep=False)
     seen: list[tuple[float, float]] = []
     sink_log: list[float] = []
-    consumer_log: list[float] = []
+    consumer_log: list[tuple[float, float]] = []
     rt.add_module(
         ModuleSpec("fast", outputs=("/fast",), period_s=0.005, deadline_s=0.004), lambda: Counter("/fast")
     )
@@ -300,7 +313,7 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     )
     rt.add_module(
         ModuleSpec("consumer", inputs=("/slow",), outputs=("/consumer",), period_s=0.04, deadline_s=0.005),
-        lambda: Sink(consumer_log),
+        lambda: SlowConsumer(consumer_log),
     )
     rt.add_module(
         ModuleSpec(
@@ -331,4 +344,12 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     slow_events = [e.cause for e in rt.events if e.module == "slow"]
     assert slow_events == ["slow"], rt.events  # reported once, and degraded: not again
     assert {e.cause for e in rt.events} == {"slow"}, rt.events  # lateness is never called a hang
-    assert not consumer_log  # the slow module is late every cycle: its consumer never ran on old data
+    # The slow module is late every cycle: its consumer ran after each of its releases, each time on
+    # the output of the slow release before it, never on an older one (that is, never while the slow
+    # module was computing a newer one).
+    assert consumer_log
+    slow_releases = [release_s for release_s, _ in seen]
+    for release_s, input_t_s in consumer_log:
+        before = [s for s in slow_releases if s <= release_s]
+        assert before and input_t_s == before[-1], (release_s, input_t_s, slow_releases)
+        assert release_s >= input_t_s + 0.03  # the slow step sleeps 30 ms: it ran after it was done
