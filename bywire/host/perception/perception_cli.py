@@ -162,7 +162,7 @@ def main_track_eval(args: argparse.Namespace) -> int:
     ab = result["ab3dmot"]
     print(
         f"AB3DMOT (published, PointRCNN, KITTI val, {len(ab['sequences'])} sequences): "
-        f"MOTA {100 * ab['mota']:.2f}; * = one of its validation sequences; MOTP = mean 3-D IoU of the matches"
+        f"MOTA {100 * ab['mota']:.2f}; * = one of its validation sequences; MOTP: mean 3-D IoU of matches"
     )
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1, default=float) + "\n")
