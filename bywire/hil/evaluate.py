@@ -265,6 +265,17 @@ def evaluate(
     if stalls is not None:
         metrics["host_stalls"] = stalls.get("host", {}).get("count", 0)
         metrics["plant_stalls"] = stalls.get("plant", {}).get("count", 0)
+        # The longest gaps of each process's rhythm (HIL: the stall recorders' histograms).
+        for metric, process, channel in (
+            ("host_link_gap_max_ms", "host", "ecu_link"),
+            ("plant_step_gap_max_ms", "plant", "step"),
+        ):
+            rhythm = stalls.get(process, {}).get("rhythm_ms", {}).get(channel)
+            if rhythm is not None:
+                metrics[metric] = rhythm["max"]
+    heard = (extra.get("ecu_loop") or {}).get("host_link", {}).get("heartbeat_gap_ms")
+    if heard is not None:
+        metrics["heartbeat_gap_at_ecu_max_ms"] = heard["max"]  # what the ECU's watchdog judged
     metrics.update(extra)
     urban_details: dict[str, Any] = {}
     if scenario.urban is not None:

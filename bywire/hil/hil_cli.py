@@ -12,6 +12,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 
 def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -> None:
@@ -95,11 +96,32 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
                     f"    {process}: {r['channel']} silent {r['gap_ms']} ms from {r['from_s']:.3f} s, "
                     f"busiest thread {r['busiest_thread']} at {where}"
                 )
+    rhythm = rhythm_line(result)
+    if rhythm:
+        print(f"  rhythm (gap p99/max ms): {rhythm}")
     print(
         f"{result['scenario']} ({result['mode']}): {result['verdict'].upper()}"
         + (f" — report in {result['report_dir']}" if result.get("report_dir") else "")
     )
     return 0 if result["verdict"] == "pass" else 1
+
+
+def rhythm_line(result: dict[str, Any]) -> str:
+    """Each process's rhythm in one line (HIL runs: the stall recorders' and the ECU's histograms)."""
+    parts = []
+    stalls = result.get("stalls", {})
+    for label, process, channel in (
+        ("host ECU link", "host", "ecu_link"),
+        ("host tick", "host", "scheduler"),
+        ("plant step", "plant", "step"),
+    ):
+        r = stalls.get(process, {}).get("rhythm_ms", {}).get(channel)
+        if r and r.get("count"):
+            parts.append(f"{label} {r['p99']:.1f}/{r['max']:.1f}")
+    heard = result["metrics"].get("ecu_loop", {}).get("host_link", {}).get("heartbeat_gap_ms")
+    if heard and heard.get("count"):
+        parts.append(f"heartbeat at the ECU {heard['p99']:.1f}/{heard['max']:.1f}")
+    return "; ".join(parts)
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:

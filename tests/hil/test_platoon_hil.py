@@ -9,23 +9,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import yaml
 from hil_process_run import run_in_hil
 
-from bywire.hil.scenario import builtin_scenarios
+from bywire.hil.hil_variants import gcdc_heat_hil
 
 pytestmark = pytest.mark.hil
 
 
 def test_gcdc_heat_in_three_processes(tmp_path: Path) -> None:
-    doc = yaml.safe_load(builtin_scenarios()["gcdc_heat"].read_text())
-    doc["name"] = "gcdc_heat_hil"
-    doc["duration_s"] = 60.0
-    doc["world"]["gps"]["outages"][1]["at_s"] = 40.0  # our own bridge, inside the 60 s
-    # The spectral estimate needs the whole 300 s heat, the speed-limit zone comes at ~280 s: judged in SIL.
-    doc["checks"] = [
-        c for c in doc["checks"] if c["metric"] not in ("string_stability", "speed_limit_excess_mps")
-    ]
+    doc = gcdc_heat_hil()  # the heat's first 60 s, its bridge outage moved inside them
     result, report = run_in_hil(doc, tmp_path)
     m = result["metrics"]
     assert m["collisions"] == 0 and m["limit_violations"] == 0 and m["final_state"] == "ENGAGED"

@@ -13,6 +13,7 @@ import yaml
 from hil_process_run import run_in_hil
 from shared_data import shared_data_dir
 
+from bywire.hil.hil_variants import four_way_stop_hil
 from bywire.hil.scenario import builtin_scenarios
 
 pytestmark = pytest.mark.hil
@@ -34,12 +35,7 @@ def _sample_mission(name: str) -> dict[str, Any]:
 
 
 def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
-    path = builtin_scenarios()["four_way_stop_1"]
-    doc = yaml.safe_load(path.read_text())
-    doc["name"] = "four_way_stop_1_hil"
-    for key in ("rndf", "mdf"):  # the copy lives elsewhere: the shipped network by absolute path
-        doc["urban"][key] = str(path.parent / doc["urban"][key])
-    result = _run_hil(doc, tmp_path)
+    result = _run_hil(four_way_stop_hil(), tmp_path)
     m = result["metrics"]
     assert m["checkpoints_reached_list"] == [1, 2] and m["precedence_violations"] == 0
     assert m["collisions"] == 0 and m["final_state"] == "ENGAGED"

@@ -336,7 +336,40 @@ def test_event_timer_and_heartbeat_parse() -> None:
         parse_heartbeat(b"\x05\x05")
 
 
+@given(st.lists(st.floats(-2.0, 2.0), min_size=50, max_size=50))
+def test_a_timer_polled_by_a_loop_of_its_own_period_never_skips_one(jitter_ms: list[float]) -> None:
+    """The host ticks its heartbeat once per 20 ms request: the loop's jitter (here +-2 ms around its
+    grid) must never make a period look not yet due and double the gap the ECU's watchdog sees."""
+    timer = EventTimer(20, early_ms=10.0)
+    calls_s = [(20 * k + 5 + j) / 1000 for k, j in enumerate(jitter_ms)]
+    fired = [t for t in calls_s if timer.due(t)]
+    assert len(fired) == len(calls_s)
+
+
+def test_without_the_allowance_a_late_first_tick_doubles_a_gap() -> None:
+    strict = EventTimer(20)  # why the host's heartbeat timer has its allowance
+    calls_s = [0.0053, 0.0251, 0.0452]  # the first call 0.3 ms late, the next 0.1 ms
+    assert [strict.due(t) for t in calls_s] == [True, False, True]
+    lenient = EventTimer(20, early_ms=10.0)
+    assert [lenient.due(t) for t in calls_s] == [True, True, True]
+
+
 # --- the link in lockstep ----------------------------------------------------------------------
+
+
+def test_the_ecu_hears_the_hosts_rhythm_from_its_first_heartbeat(link: Link) -> None:
+    """The node counts the gaps between the host's heartbeats and requests as received; the boot-up
+    the host sends when it starts (long before its first heartbeat) starts the rhythm, not a gap."""
+    link.run(0.4, requests_every_ms=None)  # a host that has booted but not yet ticked
+    link.start()
+    link.run(0.5)
+    rhythm = link.ecu.host_rhythm()
+    beats, requests = rhythm["heartbeat_gap_ms"], rhythm["request_gap_ms"]
+    sent = [t for t, data in link.frames_on(HOST_HB) if data != b"\x00"]  # the heartbeats, not the boot-up
+    assert beats["count"] == len(sent) - 1
+    assert beats["max"] == pytest.approx(1e3 * max(b - a for a, b in itertools.pairwise(sent)), abs=0.2)
+    assert beats["max"] < 25.0
+    assert requests["count"] >= 20 and requests["p50"] == pytest.approx(requests["max"], abs=1.0)
 
 
 def test_request_and_status_round_trip(link: Link) -> None:

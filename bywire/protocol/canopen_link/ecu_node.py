@@ -322,10 +322,10 @@ class EcuNode:
 
     def host_rhythm(self) -> dict[str, Any]:
         """The gaps between the host's heartbeats and between its accepted requests, as received
-        (ms: count, p50, p99, p999, max, and when the longest ended on the node's clock)."""
+        (ms: count, p50, p99, p999, max, when the longest ended on the node's clock, and the bins)."""
         return {
-            "heartbeat_gap_ms": {**self.heartbeat_gaps.summary(), "max_at_s": self.heartbeat_gaps.max_at_s},
-            "request_gap_ms": {**self.request_gaps.summary(), "max_at_s": self.request_gaps.max_at_s},
+            "heartbeat_gap_ms": self.heartbeat_gaps.to_json(),
+            "request_gap_ms": self.request_gaps.to_json(),
         }
 
     def host_alive(self, now_s: float) -> bool:
@@ -408,7 +408,11 @@ class EcuNode:
 
     def _on_host_heartbeat(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         # Judged by its receive time: a heartbeat queued during a stall is as old as it is.
-        self.host_heartbeat.on_frame(data, timestamp)
+        if not self.host_heartbeat.on_frame(data, timestamp):
+            return
+        if self.host_heartbeat.state is NmtState.INITIALISING:  # a boot-up: the rhythm starts anew
+            self._heartbeat_rx_s = None
+            return
         if self._heartbeat_rx_s is not None:
             self.heartbeat_gaps.add(timestamp - self._heartbeat_rx_s, timestamp)
         self._heartbeat_rx_s = timestamp

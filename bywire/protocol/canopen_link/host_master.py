@@ -215,7 +215,9 @@ class HostMaster:
         self._latest: tuple[EcuStatus, float] | None = None
         self._rx_now_s = clock.now()
         self._sdo_idle: Callable[[], object] | None = None
-        self._hb_timer = EventTimer(period_ms)
+        # Ticked once per request (the ECU link's period is the heartbeat's): half a period early
+        # still counts, so the scheduler's jitter never turns one period into two.
+        self._hb_timer = EventTimer(period_ms, early_ms=period_ms / 2)
         self._nmt_state = NmtState.PRE_OPERATIONAL
         self._send(HEARTBEAT_COB_BASE + node_id, b"\x00")  # boot-up
 

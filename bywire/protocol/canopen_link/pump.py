@@ -29,10 +29,16 @@ def to_us(t_s: float) -> int:
 
 
 class EventTimer:
-    """A period on the pump's clock: `due(now_s)` is True once per period, without drift."""
+    """A period on the pump's clock: `due(now_s)` is True once per period, without drift.
 
-    def __init__(self, period_ms: int) -> None:
+    `early_ms`: how early a call may find it due. A timer polled once per period by a loop of the
+    same period (the host's heartbeat, sent with each 20 ms request) would otherwise alias with the
+    loop's jitter: a call 0.1 ms before the instant finds it not due, and the next is a period later,
+    a double gap. Polled at 1 kHz (the ECU) it needs none."""
+
+    def __init__(self, period_ms: int, early_ms: float = 0.0) -> None:
         self.period_ms = period_ms
+        self._early_us = int(early_ms * 1000)
         self._next_us: int | None = None
 
     @property
@@ -51,17 +57,17 @@ class EventTimer:
 
     def next_s(self) -> float:
         """Before this instant `due` is surely False (a microsecond early; -inf: due at once)."""
-        return -math.inf if self._next_us is None else (self._next_us - 1) * 1e-6
+        return -math.inf if self._next_us is None else (self._next_us - self._early_us - 1) * 1e-6
 
     def due(self, now_s: float) -> bool:
         next_us = self._next_us
-        if next_us is not None and now_s * 1e6 < next_us - 1:
+        if next_us is not None and now_s * 1e6 < next_us - self._early_us - 1:
             return False  # clearly not yet: spares the exact integer conversion on most calls
         now_us = to_us(now_s)
         if self._next_us is None:
             self._next_us = now_us + self._period_us
             return True
-        if now_us < self._next_us:
+        if now_us < self._next_us - self._early_us:
             return False
         self._next_us += self._period_us
         if self._next_us <= now_us:
