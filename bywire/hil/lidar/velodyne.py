@@ -171,17 +171,22 @@ class SimulatedVelodyne:
         keep = hit
         if self.dropout_probability > 0.0:
             keep = hit & (gen.random(self.rays, dtype=np.float32) >= self.dropout_probability)
-        n = int(keep.sum())
+        idx = np.flatnonzero(keep)
         # float32 draws: half the time of float64 ones, and the scan is float32 anyway
-        noise = gen.standard_normal((2, n), dtype=np.float32)
-        measured = rng_m[keep] + np.float32(self.range_noise_m) * noise[0]
+        noise = gen.standard_normal((2, len(idx)), dtype=np.float32)
+        measured = rng_m.take(idx)
+        measured += np.float32(self.range_noise_m) * noise[0]
         # a return from closer than the noise is still in front of the sensor
         np.maximum(measured, np.float32(0.0), out=measured)
-        refl = REFLECTANCE[surface[keep]] + np.float32(self.reflectance_noise) * noise[1]
+        xyz = self._dirs_sensor.take(idx, axis=0)
+        xyz *= measured[:, None]
+        refl = REFLECTANCE.take(surface.take(idx))
+        refl += np.float32(self.reflectance_noise) * noise[1]
+        np.clip(refl, np.float32(0.0), np.float32(1.0), out=refl)
         return Scan(
-            xyz_m=np.ascontiguousarray(self._dirs_sensor[keep] * measured[:, None], dtype=np.float32),
-            reflectance=np.clip(refl, np.float32(0.0), np.float32(1.0)),
-            beam=self._beam[keep],
+            xyz_m=xyz,
+            reflectance=refl,
+            beam=self._beam.take(idx),
             stamp_s=float(stamp_s),
             sensor_height_m=self.mount_height_m,
         )

@@ -113,6 +113,7 @@ def test_moving_cars_are_where_the_world_has_them_at_each_revolution() -> None:
     car = bench.lidar.world.cars[0]
     seen = []
     for _ in range(3):
+        bench.advance()
         scan = bench()
         xyz = _world_points(bench.lidar, scan)
         c, s = np.cos(car.heading_rad), np.sin(car.heading_rad)
