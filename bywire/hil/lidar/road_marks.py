@@ -204,7 +204,7 @@ def _stop_bars(graph: RoadGraph, ground: Ground, widths: dict[LaneId, float]) ->
         hw = 0.5 * widths.get(LaneId(v.segment, v.lane), DEFAULT_LANE_WIDTH_M)
         c, s = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
         along = np.array([-STOP_BAR_M, 0.0])
-        # the bar ends at the stop waypoint: a car stops with its bumper at the bar's near edge or behind
+        # the bar lies just before the stop waypoint, where the rules want the front bumper (within 1 m)
         right = np.column_stack([pose.x_m + along * c + hw * s, pose.y_m + along * s - hw * c])
         left = np.column_stack([pose.x_m + along * c - hw * s, pose.y_m + along * s + hw * c])
         bars.append(
