@@ -12,8 +12,8 @@ the host runtime's transport as one message per revolution. Little-endian, plana
     n       uint8         beam (laser row, 0 = highest elevation), < beams
 
 14 bytes a point: 114 k points (64 beams x 2000 azimuths on an open road) are 1.6 MB. No checksum:
-the transports that carry it are reliable and checked (TCP, shared memory), and a corrupt float
-would be found by nothing short of one.
+the message crosses between processes on one machine over a reliable, ordered transport, and a
+checksum would cost a pass over 1.6 MB at 10 Hz to guard against nothing that transport does.
 
 This layer knows arrays, not the host's `Scan` (`bywire.protocol` imports no host code): the receiver
 builds its scan from `ScanPayload`. `decode` refuses anything but a well-formed revolution with
