@@ -83,14 +83,15 @@ class Detection:
 
 @dataclass(frozen=True)
 class TrackerParams:
-    """The tracker's parameters. The defaults are the ones measured best on KITTI car tracking
-    (docs/perception.md "Tracking"), except the birth score, which belongs to a detector."""
+    """The tracker's parameters, for detections in a world frame at 10 Hz. KITTI's camera frame
+    takes `track_eval.KITTI_TRACKER` (docs/perception.md "Tracking")."""
 
     # R of eq. 7: the detector's centre error, 1 sigma per axis.
     position_sigma_m: float = 0.3
-    # Q: white-noise acceleration PSD. Camera-frame tracking on KITTI sees the ego car's turns as
-    # apparent lateral acceleration of everything, hence more than a car's own ~2 m/s^2.
-    accel_psd_m2_s3: float = 4.0
+    # Q: white-noise acceleration PSD in a world frame: the velocity's random walk grows by
+    # sqrt(q * t), 1 m/s over a second, an urban car's unmodelled braking and turning. Camera-frame
+    # tracking (KITTI) sees the ego car's turns as everything's acceleration and needs more.
+    accel_psd_m2_s3: float = 1.0
     # Velocity of a newborn track is unknown: zero mean, this sigma (a car at urban speed).
     initial_speed_sigma_mps: float = 10.0
     # chi-square gate probability, 2 degrees of freedom (0.999: d2 <= 13.8).
