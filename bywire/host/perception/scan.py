@@ -68,11 +68,12 @@ def read_kitti_bin(path: Path, stamp_s: float = 0.0) -> Scan:
     path = Path(path)
     try:
         raw = np.fromfile(path, dtype=np.float32)
+        size = path.stat().st_size  # fromfile drops a tail shorter than one float
     except OSError as e:
         raise ScanFormatError(f"{path}: cannot read: {e.strerror or e}") from e
-    if raw.size % 4:
+    if size % 16:
         raise ScanFormatError(
-            f"{path}: {raw.size * 4} bytes is not a whole number of 16-byte points (x, y, z, reflectance)"
+            f"{path}: {size} bytes is not a whole number of 16-byte points (x, y, z, reflectance)"
         )
     pts = raw.reshape(-1, 4)
     finite = np.isfinite(pts).all(axis=1)
