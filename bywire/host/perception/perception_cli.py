@@ -1,4 +1,4 @@
-"""`bywire perception grid` (seed 000 sections 4-5).
+"""`bywire perception grid` and `bywire perception track-eval` (seed 000 sections 4-5).
 
 One pair per command, `add_<name>_arguments(p)` and `main_<name>(args) -> int`, as `bywire.cli`'s table
 names them; each imports what it runs inside its main, so one command does not load another's.
@@ -9,6 +9,14 @@ section 5), at the origin pose. Prints a summary line; the PNG shows the occupan
 cells with the objects outlined; the JSON holds the layout, the cell counts, the obstacle cells, the
 objects (centre, size) and the update time. A file that is not a scan: one line naming it on stderr,
 exit 2; an output that cannot be written: exit 1.
+
+``perception track-eval LABELS_DIR DETS_DIR [--calib DIR] [--sequences 0001,0002] --json OUT``: our
+tracker (`tracker.Tracker`) on KITTI tracking detections, scored with CLEAR-MOT against the labels
+(`track_eval`, AB3DMOT's protocol: car, 3-D IoU 0.25). Prints a table per sequence beside AB3DMOT's
+published score and writes ``{"mota", "motp", "id_switches", "fragmentations", "sequences": {...}}``
+plus more keys (``val_overall``, ``ab3dmot``, ``params``, ...) to OUT. ``--calib`` defaults to the
+``calib`` folder beside LABELS_DIR. Exit status 0, or 2 for unreadable or missing input (the error
+line on stderr, naming the file and line).
 """
 
 from __future__ import annotations
@@ -93,4 +101,69 @@ def main_grid(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"error: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
         return 1
+    return 0
+
+
+def add_track_eval_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("labels_dir", type=Path, metavar="LABELS_DIR", help="KITTI label_02 folder (NNNN.txt)")
+    p.add_argument(
+        "dets_dir",
+        type=Path,
+        metavar="DETS_DIR",
+        help="detections in AB3DMOT's format (NNNN.txt, comma separated)",
+    )
+    p.add_argument(
+        "--calib", type=Path, metavar="DIR", help="calibration folder (default: `calib` beside LABELS_DIR)"
+    )
+    p.add_argument(
+        "--sequences",
+        metavar="LIST",
+        help="comma-separated sequence names, e.g. 0001,0006 (default: all with labels and detections)",
+    )
+    p.add_argument("--json", type=Path, required=True, metavar="OUT", help="write the scores here")
+
+
+def _sequences(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    # "1" and "0001" name the same KITTI sequence file.
+    return [f"{int(s):04d}" if s.isdigit() else s for s in names]
+
+
+def _row(name: str, s: dict[str, Any]) -> str:
+    def pct(v: float | None) -> str:
+        return "   n/a" if v is None else f"{100 * v:6.2f}"
+
+    return (
+        f"{name:>9} {pct(s['mota'])} {pct(s['motp'])} {s['id_switches']:5d} {s['fragmentations']:5d} "
+        f"{s['false_positives']:6d} {s['misses']:6d} {s['objects']:7d}"
+    )
+
+
+def main_track_eval(args: argparse.Namespace) -> int:
+    from bywire.host.perception.kitti_tracking import KittiFormatError
+    from bywire.host.perception.track_eval import TrackEvalError, evaluate
+
+    calib = args.calib if args.calib is not None else Path(args.labels_dir).parent / "calib"
+    try:
+        result = evaluate(args.labels_dir, args.dets_dir, calib, _sequences(args.sequences))
+    except (KittiFormatError, TrackEvalError) as e:
+        print(f"bywire perception track-eval: {e}", file=sys.stderr)
+        return 2
+    print(
+        f"{'sequence':>9} {'MOTA%':>6} {'MOTP%':>6} {'IDS':>5} {'FRAG':>5} {'FP':>6} {'FN':>6} {'objects':>7}"
+    )
+    for name, scores in result["sequences"].items():
+        print(_row(name + ("*" if scores["ab3dmot_val"] else ""), scores))
+    print(_row("overall", result))
+    if result["val_overall"] is not None:
+        print(_row("val*", result["val_overall"]))
+    ab = result["ab3dmot"]
+    print(
+        f"AB3DMOT (published, PointRCNN, KITTI val, {len(ab['sequences'])} sequences): "
+        f"MOTA {100 * ab['mota']:.2f}; * = one of its validation sequences; MOTP: mean 3-D IoU of matches"
+    )
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=1, default=float) + "\n")
     return 0
