@@ -537,14 +537,19 @@ class LaneMarkerMap:
         self.last: MarkerFeatures | None = None
 
     def update(self, scan: Scan, pose: PlanarPose, ground_mask: BoolArray | None = None) -> MarkerFeatures:
+        """Extract one revolution's features and map them (`add`)."""
         feats = extract_features(scan, self.params, ground_mask)
+        self.add(feats, pose, scan.stamp_s)
+        return feats
+
+    def add(self, feats: MarkerFeatures, pose: PlanarPose, stamp_s: float) -> None:
+        """Map a revolution's features with the car's pose: shift the grid to the sensor, decay, deposit."""
         c, s = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
         ox, oy = self.sensor_offset_m
         self.grid.recentre(pose.x_m + c * ox - s * oy, pose.y_m + s * ox + c * oy)
         pts = np.concatenate((feats.paint_xy_m, feats.curb_xy_m))
-        self.grid.add(_to_world(pts, pose, self.sensor_offset_m), scan.stamp_s)
+        self.grid.add(_to_world(pts, pose, self.sensor_offset_m), stamp_s)
         self.last = feats
-        return feats
 
 
 def marker_png(grid: MarkerGrid | npt.ArrayLike, path: Path | str, *, scale: float | None = None) -> Path:
