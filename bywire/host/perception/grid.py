@@ -300,6 +300,7 @@ class OccupancyGrid:
         self.updates = 0
         self._centre_steps: tuple[int, int] | None = None
         self._scratch = np.empty(self.layout.n_cells, np.float32)
+        self._measure_scratch = _MeasureScratch(self.layout.n_cells)
 
     @cached_property
     def _elevation_threshold_m(self) -> F32:
@@ -345,7 +346,7 @@ class OccupancyGrid:
         keep &= z <= np.float32(m.max_height_m - scan.sensor_height_m)
         keep &= x * x + y * y >= np.float32(m.min_range_m**2)
         flat = self.layout.flat_index(qx[keep].astype(np.int32), qy[keep].astype(np.int32))
-        return _cell_measures(flat, z[keep], scan.beam[keep])
+        return _cell_measures(flat, z[keep], scan.beam[keep], self._measure_scratch)
 
     def _integrate(self, me: CellMeasures) -> None:
         m = self.model
@@ -417,31 +418,52 @@ def fuse_max(snapshots: Sequence[GridSnapshot]) -> GridSnapshot:
     )
 
 
-def _cell_measures(flat: I32, z: F32, beam: npt.NDArray[np.int16]) -> CellMeasures:
-    """n_i, b_i, min and max z per cell, without a sort of every point: a scan arrives beam by beam in
-    azimuth order, so consecutive points mostly share a cell; runs of them are reduced first and only the
-    runs (about 0.4 of the points on KITTI) are sorted by cell. Any order gives the same result."""
-    if flat.shape[0] == 0:
+class _MeasureScratch:
+    """Per-cell accumulators the size of the grid, all empty between revolutions: a revolution resets
+    only the cells it touched, so the cost follows the points, not the grid."""
+
+    def __init__(self, n_cells: int) -> None:
+        self.points = np.zeros(n_cells, np.int32)
+        self.z_min_m = np.full(n_cells, np.inf, np.float32)
+        self.z_max_m = np.full(n_cells, -np.inf, np.float32)
+        self.beams = np.zeros(n_cells, np.uint64)
+        self.ones = np.ones(0, np.int32)
+
+
+def _cell_measures(
+    flat: npt.NDArray[np.integer], z: F32, beam: npt.NDArray[np.int16], scratch: _MeasureScratch
+) -> CellMeasures:
+    """n_i, b_i, min and max z per cell by unbuffered scatter (`ufunc.at`, whose loops for matching
+    dtypes are fast since numpy 1.25); distinct beams as one bit per beam, set once per run of
+    consecutive points of one cell and beam (a scan arrives beam by beam in azimuth order, so a run is
+    mostly several points). Any order of the points gives the same result."""
+    n = flat.shape[0]
+    if n == 0:
         empty_i, empty_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
         return CellMeasures(empty_i, empty_i, empty_i, empty_f, empty_f)
+    if scratch.ones.shape[0] < n:
+        scratch.ones = np.ones(n, np.int32)
+    z = np.asarray(z, np.float32)
+    np.add.at(scratch.points, flat, scratch.ones[:n])
+    np.minimum.at(scratch.z_min_m, flat, z)
+    np.maximum.at(scratch.z_max_m, flat, z)
     change = (flat[1:] != flat[:-1]) | (beam[1:] != beam[:-1])
     starts = np.concatenate(([0], np.flatnonzero(change) + 1))
-    run_cell = flat[starts]
-    run_points = np.diff(np.append(starts, flat.shape[0]))
-    run_zmin = np.minimum.reduceat(z, starts)
-    run_zmax = np.maximum.reduceat(z, starts)
-    run_mask = np.left_shift(np.uint64(1), (beam[starts] & 63).astype(np.uint64))
-    order = np.argsort(run_cell, kind="stable")  # timsort: the runs' cells come in long ordered stretches
-    sorted_cells = run_cell[order]
-    first = np.concatenate(([0], np.flatnonzero(sorted_cells[1:] != sorted_cells[:-1]) + 1))
-    beams = _popcount64(np.bitwise_or.reduceat(run_mask[order], first))
-    return CellMeasures(
-        sorted_cells[first].astype(np.int32),
-        np.add.reduceat(run_points[order], first).astype(np.int32),
-        beams,
-        np.minimum.reduceat(run_zmin[order], first),
-        np.maximum.reduceat(run_zmax[order], first),
+    bits = np.left_shift(np.uint64(1), (beam[starts] & 63).astype(np.uint64))
+    np.bitwise_or.at(scratch.beams, flat[starts], bits)
+    cells = np.flatnonzero(scratch.points)
+    out = CellMeasures(
+        cells.astype(np.int32),
+        scratch.points[cells],
+        _popcount64(scratch.beams[cells]),
+        scratch.z_min_m[cells],
+        scratch.z_max_m[cells],
     )
+    scratch.points[cells] = 0
+    scratch.z_min_m[cells] = np.inf
+    scratch.z_max_m[cells] = -np.inf
+    scratch.beams[cells] = 0
+    return out
 
 
 def _popcount64(v: npt.NDArray[np.uint64]) -> I32:
