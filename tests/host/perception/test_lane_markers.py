@@ -171,15 +171,17 @@ def kitti_scans() -> list[Scan]:
 
 
 def test_kitti_markers_run_along_the_road() -> None:
-    """KITTI odometry 00, frames 0-5: a residential street just past a junction, its kerbs 4.4 m left and
-    2.2 m right of the car, a dashed centre line of the side street behind on the left.
+    """KITTI odometry 00, frames 0-5: a residential street just past a junction whose side street has a
+    dashed centre line; no painted lane lines along the street itself.
 
     What the marker image shows (accumulated at 0.72 m per frame, the registration's ego-motion; the
-    listed poses do not fit these scans): curbs along both kerbs ahead and round the junction's
-    corners, paint on the dashed line and on the kerbs' gutters. Its dominant direction lies 3.6-4.6 deg
-    left of the sensor's x axis after each of the frames 1-5; the car drives 3.1 deg left of its x axis
-    in the sequence's ground truth (0.047 m sideways per 0.86 m), i.e. along the road. Asserted within
-    6 deg. Lines are found on both sides of the car within the road's width plus the parking lane."""
+    listed poses do not fit these scans): curbs along both sides ahead and round the junction's corners,
+    paint on the dashed line and the gutters. Its dominant direction lies 3.6-4.6 deg left of the
+    sensor's x axis after each of the six revolutions; the car drives 3.1 deg left of its x axis in the
+    sequence's ground truth (0.047 m sideways per 0.86 m), i.e. along the road. Asserted within 6 deg,
+    to the left. Its lines lie 4.4 m left and 3.0, 4.5 and 6.5 m right of the sensor (kerbs, gutters,
+    the feet of parked cars: the scans alone do not tell which); asserted: lines on both sides within
+    8 m."""
     markers = LaneMarkerMap()
     for k, scan in enumerate(kitti_scans()):
         markers.update(scan, VehiclePose(0.72 * k, 0.0, 0.0))
