@@ -46,6 +46,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -56,6 +57,7 @@ from bywire.host.perception.scan import Scan
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
+IntArray = npt.NDArray[np.signedinteger[Any]]
 Bool = npt.NDArray[np.bool_]
 
 
@@ -133,13 +135,15 @@ class GridLayout:
         active[1:, q : n - q, q : n - q] = False
         return active
 
-    def flat_index(self, qx: I32, qy: I32) -> I32:
-        """The cell of points given by their finest-cell coordinates from the centre (floor(x / finest)),
-        all inside the outermost window: the finest window holding the point gives its level."""
+    def flat_index(self, qx: IntArray, qy: IntArray) -> IntArray:
+        """The cell of points given by their finest-cell coordinates from the centre (floor(x / finest),
+        signed integers), all inside the outermost window: the finest window holding a point gives its
+        level. The result has the coordinates' dtype."""
         half = self.cells_per_side // 2
+        sign = qx.dtype.itemsize * 8 - 1
         # a = q for q >= 0 and -q - 1 below: the windows [-h, h) become a < h on both sides.
-        a = np.maximum(qx ^ (qx >> 31), qy ^ (qy >> 31))
-        level = np.zeros(qx.shape, np.int32)
+        a = np.maximum(qx ^ (qx >> sign), qy ^ (qy >> sign))
+        level = np.zeros(qx.shape, qx.dtype)
         for k in range(self.levels - 1):
             level += a >= (half << k)
         cx = (qx >> level) + half
@@ -345,7 +349,8 @@ class OccupancyGrid:
         keep = (qx >= -h) & (qx < h) & (qy >= -h) & (qy < h)
         keep &= z <= np.float32(m.max_height_m - scan.sensor_height_m)
         keep &= x * x + y * y >= np.float32(m.min_range_m**2)
-        flat = self.layout.flat_index(qx[keep].astype(np.int32), qy[keep].astype(np.int32))
+        # intp: the index type ufunc.at uses, so the scatter below converts nothing
+        flat = self.layout.flat_index(qx[keep].astype(np.intp), qy[keep].astype(np.intp))
         return _cell_measures(flat, z[keep], scan.beam[keep], self._measure_scratch)
 
     def _integrate(self, me: CellMeasures) -> None:
