@@ -380,27 +380,31 @@ def _curbs(
     n = sub.size
     if n < 3:
         return np.zeros((0, 2))
-    xs, ys, ids, gs, bs = x[sub], y[sub], idx[sub], ground[sub], beam[sub]
+    bs = beam[sub]
     hs = height[sub]
     # Heights smoothed over three neighbours: range noise (2 cm) is not a step.
     hs[1:-1] = (hs[:-2] + hs[1:-1] + hs[2:]) * np.float32(1.0 / 3.0)
     # Each window ends about curb_window_m further along the ring: at range r a beam's points are
     # r * dphi apart (dphi: a turn over the beam's points per turn).
     lag = np.ceil(np.float32(params.curb_window_m) / (r[sub] * dphi_rad[bs])).astype(np.intp)
-    i = np.flatnonzero(np.arange(n) + lag < n)
-    j = i + lag[i]
+    ends = np.arange(n) + lag
+    inside = ends < n
+    dz_all = hs[np.minimum(ends, n - 1)] - hs
+    mag_all = np.abs(dz_all)
+    # the rise first (few windows have one), then the rest on those only
+    i = np.flatnonzero(
+        (mag_all >= np.float32(params.curb_step_min_m))
+        & (mag_all <= np.float32(params.curb_step_max_m))
+        & inside
+    )
+    j = ends[i]
     # The ring must run on without a break between them: same beam, no more than curb_max_missing
     # points missing from the scan at any place in between (an obstacle's points are not near).
-    brk = np.zeros(n, np.int64)
-    brk[1:] = np.cumsum((bs[1:] != bs[:-1]) | (np.diff(ids) > params.curb_max_missing + 1))
-    dz = hs[j] - hs[i]
-    mag_all = np.abs(dz)
-    hit = (
-        (brk[j] == brk[i])
-        & (mag_all >= np.float32(params.curb_step_min_m))
-        & (mag_all <= np.float32(params.curb_step_max_m))
-        & np.where(dz > 0.0, gs[i], gs[j])  # the lower side on the road
-    )
+    brk = np.zeros(n, np.int32)
+    brk[1:] = np.cumsum((bs[1:] != bs[:-1]) | (np.diff(idx[sub]) > params.curb_max_missing + 1))
+    dz = dz_all[i]
+    hit = (brk[j] == brk[i]) & np.where(dz > 0.0, ground[sub[i]], ground[sub[j]])  # lower side on the road
+    mag_all = mag_all[i]
     i, j, mag = i[hit], j[hit], mag_all[hit].astype(np.float64)
     if i.size == 0:
         return np.zeros((0, 2))
@@ -412,8 +416,8 @@ def _curbs(
     best = np.maximum.reduceat(mag, np.flatnonzero(new_run))
     top = mag >= 0.9 * best[run]
     mid = np.bincount(run[top], weights=(i[top] + j[top]) / 2.0) / np.bincount(run[top])
-    m = np.rint(mid).astype(np.intp)
-    return np.column_stack((xs[m], ys[m])).astype(np.float64)
+    m = sub[np.rint(mid).astype(np.intp)]
+    return np.column_stack((x[m], y[m])).astype(np.float64)
 
 
 @dataclass(frozen=True)
