@@ -38,6 +38,7 @@ interpolated power spectrum (Parseval), so the coarse search needs no inverse FF
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -88,6 +89,21 @@ def _canonical(angles_rad: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_
     return folded, flip
 
 
+@functools.lru_cache(maxsize=8)
+def _weight(rows: int, cols: int, p: int, disc: bool) -> npt.NDArray[np.float32]:
+    """What the image is multiplied by before its FFT: 1 / (sinc^2(x/P) sinc^2(y/P)), undoing what
+    bilinear interpolation of the spectrum does to it, and 0 outside the inscribed disc if `disc`."""
+    yy = (np.arange(rows) - rows // 2).astype(np.float64)
+    xx = (np.arange(cols) - cols // 2).astype(np.float64)
+    w = 1.0 / (np.sinc(yy / p)[:, None] ** 2 * np.sinc(xx / p)[None, :] ** 2)
+    if disc:
+        radius = min(rows, cols) / 2.0
+        w = np.where(yy[:, None] ** 2 + xx[None, :] ** 2 <= radius * radius, w, 0.0)
+    out = w.astype(np.float32)
+    out.setflags(write=False)
+    return out
+
+
 class RadonSpectrum:
     """An image's zero-padded 2-D spectrum, ready to be sliced into projections at any angle.
 
@@ -104,20 +120,22 @@ class RadonSpectrum:
         rows, cols = img.shape
         p = _next_pow2(pad * max(rows, cols))
         cr, cc = rows // 2, cols // 2
-        yy = (np.arange(rows) - cr).astype(np.float32)
-        xx = (np.arange(cols) - cc).astype(np.float32)
-        if disc:
-            radius = min(rows, cols) / 2.0
-            img = np.where(yy[:, None] ** 2 + xx[None, :] ** 2 <= radius * radius, img, np.float32(0.0))
-        # Bilinear interpolation of the spectrum = the image times sinc^2(x/P) sinc^2(y/P): undo it.
-        img = img / (np.sinc(yy / p)[:, None] ** 2 * np.sinc(xx / p)[None, :] ** 2)
-        # Origin at index 0 (wrapped), so that the slices carry no phase ramp.
+        weighted = img * _weight(rows, cols, p, disc)
+        # Origin at index 0 (wrapped), so that the slices carry no phase ramp: the image's quadrants
+        # go to the corners of the padded array.
         buf = np.zeros((p, p), dtype=np.float32)
-        buf[np.ix_((np.arange(rows) - cr) % p, (np.arange(cols) - cc) % p)] = img
+        buf[: rows - cr, : cols - cc] = weighted[cr:, cc:]
+        buf[: rows - cr, p - cc :] = weighted[cr:, :cc]
+        buf[p - cr :, : cols - cc] = weighted[:cr, cc:]
+        buf[p - cr :, p - cc :] = weighted[:cr, :cc]
         spec = scipy.fft.rfft2(buf)  # (P, P/2 + 1): ky wraps along axis 0, kx = 0 .. P/2 along axis 1
-        spec = np.fft.fftshift(spec, axes=0)  # ky index + P/2
-        # One more row (ky = +P/2 is ky = -P/2) so that a ray reaching the top edge interpolates inside.
-        self._spec = np.concatenate((spec, spec[:1]), axis=0)
+        # ky from -P/2 (row 0) to +P/2 (row P, the same as -P/2, so that a ray reaching the top edge
+        # interpolates inside): fftshift along axis 0 and one more row, in one copy.
+        half = p // 2
+        self._spec = np.empty((p + 1, spec.shape[1]), dtype=spec.dtype)
+        self._spec[:half] = spec[half:]
+        self._spec[half:p] = spec[:half]
+        self._spec[p] = spec[half]
         self._power: npt.NDArray[np.float32] | None = None
         self.size = p
         self.cell_m = float(cell_m)
