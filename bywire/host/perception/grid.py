@@ -336,6 +336,25 @@ class OccupancyGrid:
 
     def measure(self, scan: Scan, pose: EgoPose) -> CellMeasures:
         """Steps 1 and 2 of section 4 for one revolution, against the grid's current centre."""
+        keep, flat = self._project(scan, pose)
+        return _cell_measures(flat, scan.xyz_m[keep, 2], scan.beam[keep], self._measure_scratch)
+
+    def obstacle_points(self, scan: Scan, pose: EgoPose | None = None) -> Bool:
+        """Per point of the scan: in a cell whose elevation difference this revolution exceeds the
+        threshold (eq. 1); the grid's evidence is not changed. Section 6 keeps lane markers off these.
+        The rest is not all road: a flat roof's cells are level too, and a lone point tells nothing."""
+        keep, flat = self._project(scan, pose if pose is not None else EgoPose())
+        me = _cell_measures(flat, scan.xyz_m[keep, 2], scan.beam[keep], self._measure_scratch)
+        n2 = self.layout.cells_per_side**2
+        step = (me.points >= self.model.min_points) & (
+            me.elevation_m > self._elevation_threshold_m[me.cells // n2]
+        )
+        out = np.zeros(len(scan), bool)
+        out[keep] = step[np.searchsorted(me.cells, flat)]
+        return out
+
+    def _project(self, scan: Scan, pose: EgoPose) -> tuple[Bool, IntArray]:
+        """Which points the grid takes, and their cells."""
         m = self.model
         x, y, z = scan.xyz_m[:, 0], scan.xyz_m[:, 1], scan.xyz_m[:, 2]
         c, s = np.float32(math.cos(pose.yaw_rad)), np.float32(math.sin(pose.yaw_rad))
@@ -349,9 +368,8 @@ class OccupancyGrid:
         keep = (qx >= -h) & (qx < h) & (qy >= -h) & (qy < h)
         keep &= z <= np.float32(m.max_height_m - scan.sensor_height_m)
         keep &= x * x + y * y >= np.float32(m.min_range_m**2)
-        # intp: the index type ufunc.at uses, so the scatter below converts nothing
-        flat = self.layout.flat_index(qx[keep].astype(np.intp), qy[keep].astype(np.intp))
-        return _cell_measures(flat, z[keep], scan.beam[keep], self._measure_scratch)
+        # intp: the index type ufunc.at uses, so the scatter converts nothing
+        return keep, self.layout.flat_index(qx[keep].astype(np.intp), qy[keep].astype(np.intp))
 
     def _integrate(self, me: CellMeasures) -> None:
         m = self.model

@@ -366,3 +366,15 @@ def test_a_snapshot_does_not_change_when_the_grid_moves_on() -> None:
     grid.update(cast(), EgoPose(3.0, 0.0))
     np.testing.assert_array_equal(snap.occupancy, occupancy)
     assert isinstance(snap, GridSnapshot)
+
+
+def test_obstacle_points_are_the_boxs_not_the_roads_and_leave_the_evidence_alone() -> None:
+    scan = cast((Box(10.0, 0.0, 2.0, 2.0, 1.0),), grade=0.05)
+    grid = OccupancyGrid()
+    obstacle = grid.obstacle_points(scan, EgoPose())
+    assert np.count_nonzero(grid.evidence) == 0
+    x, y, z = scan.xyz_m.T
+    face = (np.abs(x - 9.0) < 0.05) & (np.abs(y) < 0.9) & (z > -1.2)  # the face towards the sensor
+    assert obstacle[face].mean() > 0.9
+    road = (np.abs(x - 10.0) > 1.5) | (np.abs(y) > 1.5)
+    assert obstacle[road].sum() == 0
