@@ -34,6 +34,7 @@ from bywire.host.perception.kitti_objects import (
 )
 from bywire.host.perception.registration import register
 from bywire.host.perception.scan import Scan, read_kitti_bin
+from bywire.host.perception.segmentation import segment
 
 BANDS_M = (0.0, 20.0, 40.0, 60.0, 76.8)
 LAYOUTS = {
@@ -90,9 +91,9 @@ def update_times_ms(
     layout: GridLayout, scans: Sequence[Scan], poses: Sequence[EgoPose], passes: int = 30
 ) -> dict[str, float]:
     """Median and p99 of one update, wall clock and the thread's CPU time (which other processes on a
-    busy machine inflate less)."""
+    busy machine inflate less), and the CPU median of a snapshot and its segmentation."""
     grid = OccupancyGrid(layout)
-    wall, cpu = [], []
+    wall, cpu, seg = [], [], []
     for k in range(passes):
         # each pass drives on from where the last ended, so every update also shifts the grid
         offset = EgoPose(k * (poses[-1].x_m + 0.7), k * poses[-1].y_m)
@@ -101,12 +102,16 @@ def update_times_ms(
             grid.update(scan, offset.compose(pose))
             cpu.append(time.thread_time() - c0)
             wall.append(time.perf_counter() - t0)
+            c0 = time.thread_time()
+            segment(grid.snapshot())
+            seg.append(time.thread_time() - c0)
     w, c = np.array(wall[len(scans) :]) * 1e3, np.array(cpu[len(scans) :]) * 1e3  # pass 1 warms up
     return {
         "wall_p50": float(np.median(w)),
         "wall_p99": float(np.percentile(w, 99)),
         "cpu_p50": float(np.median(c)),
         "cpu_p99": float(np.percentile(c, 99)),
+        "segment_cpu_p50": float(np.median(seg[len(scans) :]) * 1e3),
     }
 
 
@@ -151,13 +156,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         for row in coverage(layout, scans, poses):
             print(
                 f"| {name} | {layout.n_cells} | {row['band']} | {row['hit']:.0f} | {row['classifiable']:.2f} "
-                f"| {row['known']:.3f} |"
+                f"| {row['known']:.4f} |"
             )
-    print("\n| layout | update wall p50 / p99 ms | CPU p50 / p99 ms |\n|---|---|---|")
+    print("\n| layout | update wall p50 / p99 ms | CPU p50 / p99 ms | snapshot + segment CPU p50 ms |")
+    print("|---|---|---|---|")
     for name, layout in LAYOUTS.items():
         t = update_times_ms(layout, scans, poses)
         wall, cpu = f"{t['wall_p50']:.1f} / {t['wall_p99']:.1f}", f"{t['cpu_p50']:.1f} / {t['cpu_p99']:.1f}"
-        print(f"| {name} | {wall} | {cpu} |")
+        print(f"| {name} | {wall} | {cpu} | {t['segment_cpu_p50']:.1f} |")
     objects = args.data / "object_frames"
     print("\n| layout | obstacle cells in each labelled box | P / R centre 2 m | P / R box 1 m |")
     print("|---|---|---|---|")
