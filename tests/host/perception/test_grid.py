@@ -332,7 +332,8 @@ def test_a_uniform_grid_moves_its_cells_exactly() -> None:
     world0 = grid.layout.cell_centres_m(np.array([flat0]))[0][0] + grid.centre_m
     rng = np.random.default_rng(1)
     for _ in range(20):
-        pose = EgoPose(*rng.uniform(-6.0, 6.0, 2), float(rng.uniform(-3, 3)))
+        x, y, yaw = rng.uniform(-6.0, 6.0, 3)
+        pose = EgoPose(float(x), float(y), float(yaw))
         grid.update(points_scan([]), pose)
         flat = np.flatnonzero(grid.evidence)
         if np.abs(np.array(world0) - np.array(grid.centre_m)).max() < 9.5:
