@@ -77,19 +77,31 @@ class OffsetParams:
     markings_lane_widths: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)
     # The RNDF's error "does not exceed one lane width": a vote is at most half of one from its marking.
     max_offset_lane_widths: float = 0.5
+    # The lane's direction: its chord over +-15 m, about the marker image's half width (20 m).
     centreline_window_m: float = 15.0
     # Observed lines are "close to parallel" to the map's; 4 deg is 1.4 m over a 20 m half image.
     max_angle_error_rad: float = math.radians(4.0)
     highpass_m: float = HIGHPASS_M
+    # Votes within 2 cells of the median are averaged: a line is found to a tenth of a cell, a painted
+    # line is 1-2 cells wide, and a line that is not the expected one (a curb 0.5-1 m beyond the edge
+    # line) votes further off.
     inlier_m: float = 0.3
+    # Floor of a measurement's sigma: the offsets' own accuracy (1-2 cm) is not the map's, whose lane
+    # centreline is drawn through surveyed waypoints to about a decimetre.
     measurement_sigma_m: float = 0.1
     min_lines: int = 1
     # Filter. Prior: the map is right to within a metre; it drifts by 5 cm per sqrt(s) (an RNDF's
     # error changes over tens of metres of road, seconds of driving).
     prior_sigma_m: float = 1.0
     process_sigma_m_per_sqrt_s: float = 0.05
+    # 3 sigmas: a good measurement is refused 0.3 % of the time; a match one lane over (3-4 m off
+    # against sigmas of 0.1-0.15 m) never passes.
     gate_sigmas: float = 3.0
+    # Half a second of agreeing refusals at 10 Hz: longer than a wrong match lasts (a frame or two
+    # while a line enters the image), short against a road's length.
     reset_after: int = 5
+    # Valid for the route when 1 sigma is under 0.3 m (a tenth of a lane) and fresh within 2 s (20 m at
+    # 10 m/s; beyond, the map's error may be another one).
     valid_sigma_m: float = 0.3
     timeout_s: float = 2.0
 
