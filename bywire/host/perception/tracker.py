@@ -71,7 +71,8 @@ OBSERVATION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 @dataclass(frozen=True)
 class Detection:
     """One detected object in the tracking plane: centre (m), box length along yaw and width (m),
-    yaw (rad, counter-clockwise from the plane's x axis) and the detector's score (higher: surer)."""
+    yaw (rad, counter-clockwise from the plane's x axis) and the detector's score (higher: surer).
+    The box defaults to a passenger car's."""
 
     x_m: float
     y_m: float
@@ -110,9 +111,14 @@ class TrackerParams:
     max_misses: int = 5
     # Box smoothing: weight of a new detection's length, width and yaw.
     box_gain: float = 0.5
+    # 1.5 m/s (5.4 km/h): slower, a car is creeping or standing. A static track's velocity noise
+    # (about 0.6 m/s, 1 sigma, at the default q and R) rarely passes it, and never together with the
+    # chi-square test below.
     moving_speed_mps: float = 1.5
+    # Half of it: a car braking to a stop stays moving until it nearly stands.
     static_speed_mps: float = 0.75
     moving_confidence: float = 0.99
+    # Two scans give a velocity from one difference of two noisy positions; three from a fit.
     moving_min_hits: int = 3
 
     def __post_init__(self) -> None:
