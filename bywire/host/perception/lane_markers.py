@@ -11,7 +11,8 @@ Per scan (`extract_features`), on the points of each beam in firing order:
    `ground_band_m` of z = -sensor height (the plane with the most points within half the tolerance: the
    road, whose near rings are the densest, not the sidewalk 15 cm above it, which a least-squares fit
    through both would tilt towards), refined by least squares on its inliers. Ground points lie within
-   `ground_tolerance_m` of it. A ground mask from elsewhere (the occupancy grid's) may be given instead.
+   `ground_tolerance_m` of it and, if a ground mask from elsewhere is given (the occupancy grid's points
+   that are not obstacles), in that mask too.
 2. Paint: ground points brighter than their beam's median ground reflectance by `paint_contrast`
    (single dark points between two bright ones filled: worn paint), in runs along the beam no wider
    than `paint_max_width_m`, bounded by ground on both sides, with at most `paint_max_neighbours` other
@@ -252,7 +253,9 @@ def extract_features(
     """Paint and curb features of one revolution (sensor frame); see the module docstring.
 
     Points must come in firing order within each beam (a scan as the sensor delivers it, or KITTI's files,
-    which are stored beam by beam); they may be interleaved across beams.
+    which are stored beam by beam); they may be interleaved across beams. `ground_mask` (per point of
+    the scan) is what ground must also be: the occupancy grid's `~OccupancyGrid.obstacle_points(scan,
+    pose)` keeps paint and the foot of curbs off cells with an obstacle's height step in them.
     """
     n = len(scan)
     empty = np.zeros((0, 2))
@@ -276,8 +279,6 @@ def extract_features(
     # kept (`idx`) so that neighbours in firing order are still known.
     z_all = xyz[:, 2]
     cand = np.abs(z_all + np.float32(scan.sensor_height_m)) <= params.ground_band_m + params.curb_step_max_m
-    if mask is not None:
-        cand |= mask
     idx = np.flatnonzero(cand)
     x, y, z = xyz[idx, 0], xyz[idx, 1], z_all[idx]
     r2 = x * x + y * y
@@ -286,7 +287,9 @@ def extract_features(
     beam, refl = beam_all[idx], refl_all[idx]
     plane = _fit_plane(x, y, z, scan.sensor_height_m, params) if idx.size else no_plane
     height = z - (np.float32(plane[0]) + np.float32(plane[1]) * x + np.float32(plane[2]) * y)
-    ground = np.abs(height) <= np.float32(params.ground_tolerance_m) if mask is None else mask[idx]
+    ground = np.abs(height) <= np.float32(params.ground_tolerance_m)
+    if mask is not None:
+        ground &= mask[idx]
     adjacent = (beam[1:] == beam[:-1]) & (np.diff(idx) == 1)  # subset i and i + 1 are scan neighbours
 
     paint = _paint(x, y, refl, beam, ground, adjacent, params)

@@ -81,13 +81,18 @@ def test_beams_may_come_interleaved() -> None:
     assert np.count_nonzero(interleaved.ground) == np.count_nonzero(grouped.ground)
 
 
-def test_a_ground_mask_from_elsewhere_is_used() -> None:
+def test_a_ground_mask_from_elsewhere_narrows_the_ground() -> None:
+    """The occupancy grid's non-obstacle points, say: ground must be on the road plane and in the mask."""
     scan = road_scan(seed=2)
     own = extract_features(scan)
-    again = extract_features(scan, ground_mask=own.ground)
+    again = extract_features(scan, ground_mask=np.ones(len(scan), bool))
     np.testing.assert_array_equal(again.paint_xy_m, own.paint_xy_m)
-    # a mask with no ground: no paint (paint lies on the ground)
-    assert extract_features(scan, ground_mask=np.zeros(len(scan), bool)).paint_xy_m.shape == (0, 2)
+    np.testing.assert_array_equal(again.ground, own.ground)
+    right_only = extract_features(scan, ground_mask=scan.xyz_m[:, 1] < 0.0)
+    assert not right_only.ground[scan.xyz_m[:, 1] >= 0.0].any()
+    paint = lateral_of(right_only.paint_xy_m)
+    assert paint.size > 0 and np.all(paint < 0.0)
+    assert np.all(lateral_of(right_only.curb_xy_m) < 0.0)
     with pytest.raises(ValueError, match="ground_mask"):
         extract_features(scan, ground_mask=np.zeros(3, bool))
 
