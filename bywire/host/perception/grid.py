@@ -245,8 +245,10 @@ def logistic(evidence: npt.NDArray[np.floating]) -> F32:
 class GridSnapshot:
     """A grid's state at one time, as the segmentation, the tracker and the reactive layer read it.
 
-    occupancy, z_min_m, z_max_m: (levels, N, N) arrays of the layout; centre_m: the world position of the
-    grid's centre. Cells of a coarse level inside the finer window are not its own (`layout.active_mask`).
+    occupancy, z_min_m, z_max_m: (levels, N, N) arrays of the layout (z: the lowest and highest return
+    of the last revolution that hit the cell, sensor frame, NaN if none); centre_m: the world position of
+    the grid's centre. Cells of a coarse level inside the finer window are not its own
+    (`layout.active_mask`).
     """
 
     layout: GridLayout
