@@ -54,18 +54,15 @@ def canonical(normal: float, offset: float) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize(
-    ("where", "spec", "n", "tolerance"),
+    ("where", "spec", "n"),
     [
-        # Within an eighth of the image from its centre (the lanes around the car): measured 1.5 %.
-        ("near", [(3, -4, 4.0, 1.0), (-5, 2, 3.5, 0.6), (4, 6, 4.0, 0.8)], 64, 0.025),
-        # Out to the inscribed circle's edge the bilinear interpolation of the spectrum loses up to
-        # 10-13 % of the amplitude (not the position): measured 8.7 % (64 px) and 10.6 % (256 px).
-        ("edge", [(20, -12, 4.0, 1.0), (-24, 6, 3.5, 0.6)], 64, 0.15),
-        ("edge", [(80, -48, 4.0, 1.0), (-96, 24, 3.5, 0.6)], 256, 0.15),
+        ("near", [(3, -4, 4.0, 1.0), (-5, 2, 3.5, 0.6), (4, 6, 4.0, 0.8)], 64),
+        ("edge", [(20, -12, 4.0, 1.0), (-24, 6, 3.5, 0.6)], 64),  # out to the inscribed circle's edge
+        ("edge", [(80, -48, 4.0, 1.0), (-96, 24, 3.5, 0.6)], 256),
     ],
 )
 def test_matches_a_direct_summation(
-    where: str, spec: list[tuple[float, float, float, float]], n: int, tolerance: float
+    where: str, spec: list[tuple[float, float, float, float]], n: int
 ) -> None:
     # Wide blobs: the reference blurs by a fraction of a pixel (square pixels, offset bins: 0.25 px^2),
     # 3 % of the peak of a 2 px blob and under 1 % of a 4 px one.
@@ -74,9 +71,11 @@ def test_matches_a_direct_summation(
     fast, off_fast = radon(img, angles)
     ref, off_ref = radon_direct(img, angles)
     np.testing.assert_array_equal(off_fast, off_ref)
-    assert np.abs(fast - ref).max() <= tolerance * ref.max(), where
-    # each projection holds the image's mass, to the same accuracy
-    np.testing.assert_allclose(fast.sum(axis=1), img.sum(), rtol=tolerance)
+    # Measured 0.6-1.2 % of the peak, near the centre and at the edge alike (Lanczos-3 slices of the
+    # 2x padded spectrum; bilinear ones were 1.5 % near the centre and 10-13 % at the edge).
+    assert np.abs(fast - ref).max() <= 0.02 * ref.max(), where
+    # each projection holds the image's mass (the slice's rho = 0 sample is the spectrum's own)
+    np.testing.assert_allclose(fast.sum(axis=1), img.sum(), rtol=1e-5)
 
 
 def test_a_single_pixel_projects_to_its_offset() -> None:
@@ -109,8 +108,8 @@ def test_matches_scikit_image() -> None:
     ours, _ = radon(img, np.radians(-theta_deg))
     p = ours.shape[1]
     ours = ours[:, p // 2 - n // 2 : p // 2 - n // 2 + n].T
-    # skimage rotates with bilinear interpolation and sums; measured 1.5 % of the peak (0.26.0).
-    assert np.abs(sk - ours).max() <= 0.04 * sk.max()
+    # skimage rotates with bilinear interpolation and sums; measured 1.0 % of the peak (0.26.0).
+    assert np.abs(sk - ours).max() <= 0.03 * sk.max()
 
 
 @pytest.mark.parametrize(
@@ -150,7 +149,11 @@ def test_lines_turn_with_the_image(normal: float, offset: float, turn: float) ->
     turned = math.remainder(n1 - n0 - turn, 2.0 * math.pi)
     if abs(turned) > math.pi / 2.0:
         turned, p1 = math.remainder(turned + math.pi, 2.0 * math.pi), -p1
-    assert abs(math.degrees(turned)) <= 0.1  # a 10 m half image: 0.1 deg is 1.7 cm at its edge
+    # A line within a degree of the grid's axes is drawn as a staircase whose energy peaks up to
+    # 0.13 deg nearer the axis (a direct summation of the same image says the same: the image's doing,
+    # not the transform's), so two such lines may differ by 0.26 deg; elsewhere the error is below
+    # 0.01 deg. 0.3 deg is 5 cm at the 10 m edge of this image.
+    assert abs(math.degrees(turned)) <= 0.3
     assert abs(p1 - p0) <= 0.3 * CELL_M
 
 
