@@ -34,8 +34,8 @@ projection minus its Gaussian blur of `highpass_m`, so that a broad patch of clu
 line): parallel lane markings add up at their common angle. The lines are then the peaks of the
 high-passed projection at that angle. Deviations from the paper (which gives no detail): the image is
 cut to its inscribed disc before the transform, so that every direction sees the same chord length
-(a square's diagonal is 41 % longer and would favour 45 deg); the energy of a direction is taken from the
-interpolated power spectrum (Parseval), so the coarse search needs no inverse FFT.
+(a square's diagonal is 41 % longer and would favour 45 deg); the energy of a direction is summed over
+its spectrum slice (Parseval), so the direction search needs no inverse FFT.
 """
 
 from __future__ import annotations
