@@ -1,4 +1,4 @@
-"""A simulated revolution to and from the bytes that carry it to the host (`bywire.protocol.lidar_scan`).
+"""A simulated revolution to and from the bytes that carry it to the host (`protocol.lidar.scan_message`).
 
 The host's receiver builds its `Scan` from a `ScanPayload` the way `scan_from_payload` does; it is here
 so that the simulator's tests cross the wire format with the scan type on both ends.
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from bywire.host.perception.scan import HDL64E_BEAMS, Scan
-from bywire.protocol.lidar_scan import ScanPayload, decode, encode
+from bywire.protocol.lidar.scan_message import ScanPayload, decode, encode
 
 
 def encode_scan(scan: Scan, beams: int = HDL64E_BEAMS) -> bytes:

@@ -1,4 +1,4 @@
-"""A simulated revolution crosses the wire format (protocol/lidar_scan.py) and comes back as the same Scan."""
+"""A simulated revolution crosses the wire (protocol/lidar/scan_message.py) and comes back the same."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from bywire.hil.lidar.mesh import Ground
 from bywire.hil.lidar.scene import LidarScene
 from bywire.hil.lidar.velodyne import EgoPose, SimulatedVelodyne
 from bywire.hil.lidar.wire import decode_scan, encode_scan
-from bywire.protocol.lidar_scan import LidarScanError
+from bywire.protocol.lidar.scan_message import LidarScanError
 
 
 def test_a_revolution_round_trips_through_bytes() -> None:

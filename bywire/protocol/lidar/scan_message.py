@@ -18,7 +18,7 @@ checksum would cost a pass over 1.6 MB at 10 Hz to guard against nothing that tr
 This layer knows arrays, not the host's `Scan` (`bywire.protocol` imports no host code): the receiver
 builds its scan from `ScanPayload`. `decode` refuses anything but a well-formed revolution with
 `LidarScanError` naming the field, and never raises another exception (fuzzed in
-tests/protocol/test_lidar_scan.py); its xyz and beam arrays are views of the buffer, not copies.
+tests/protocol/lidar/test_scan_message.py); its xyz and beam arrays are views of the buffer, not copies.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The LIDAR scan message (protocol/lidar_scan.py): round trips, every refusal naming its field, and a fuzz
+"""The LIDAR scan message (protocol/lidar/scan_message.py): round trips, each refusal naming its field, a fuzz
 test (random and mutated messages give a scan or `LidarScanError`, never another exception)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.protocol.lidar_scan import (
+from bywire.protocol.lidar.scan_message import (
     HEADER_BYTES,
     MAGIC,
     MAX_POINTS,
