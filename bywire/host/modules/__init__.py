@@ -153,7 +153,7 @@ def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
     from bywire.host.modules.planning.mission import ScriptMission
 
     assert res is not None
-    return ScriptMission(res.inputs.commands, res.t0_s)
+    return ScriptMission(res.inputs.commands, lambda: res.t0_s)
 
 
 def _ecu_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -182,7 +182,7 @@ def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
     return EcuTx(
         res.link,
         res.trace,
-        res.t0_s,
+        lambda: res.t0_s,
         request_max_age_s=max_age_ms / 1e3,
         heartbeat_muted=res.faults.heartbeat_muted,
         heartbeat_sent=res.heartbeat_sent,

@@ -130,7 +130,7 @@ class EcuTx(Module):
         self,
         link: HostMaster,
         trace: TraceWriter | None = None,
-        t0_s: float = 0.0,
+        t0_s: Callable[[], float] = lambda: 0.0,
         request_max_age_s: float = REQUEST_MAX_AGE_S,
         heartbeat_muted: Callable[[float], bool] | None = None,
         heartbeat_sent: Callable[[float], None] | None = None,
@@ -141,7 +141,7 @@ class EcuTx(Module):
         self.heartbeat_sent = heartbeat_sent
         self.request_max_age_s = request_max_age_s
         self.trace = trace
-        self.t0_s = t0_s
+        self.t0_s = t0_s  # read at each step: a module is built before a HIL run's start fixes t0
         self.counter = 0
         self._next_nmt_start_s = -math.inf
         self.engage_press = EngagePress()
@@ -190,7 +190,7 @@ class EcuTx(Module):
             controller = req.controller if req is not None and age_ms >= 0 else "none"
             self.trace.append(
                 (
-                    now - self.t0_s,
+                    now - self.t0_s(),
                     accel,
                     steer,
                     float(int(flags)),

@@ -8,18 +8,20 @@ of it: the script's engage wish and buttons still come from here.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from bywire.host.command_script import CommandScript
 from bywire.host.modules.messages import MISSION, MissionCommand
 from bywire.host.runtime.module import Module, ModuleContext
 
 
 class ScriptMission(Module):
-    def __init__(self, script: CommandScript, t0_s: float) -> None:
+    def __init__(self, script: CommandScript, t0_s: Callable[[], float]) -> None:
         self.script = script
-        self.t0_s = t0_s
+        self.t0_s = t0_s  # read at each step: a module is built before a HIL run's start fixes t0
 
     def step(self, ctx: ModuleContext) -> None:
-        c = self.script.at(ctx.now_s - self.t0_s)
+        c = self.script.at(ctx.now_s - self.t0_s())
         ctx.publish(
             MISSION,
             MissionCommand(
