@@ -38,6 +38,37 @@ def test_local_frame_round_trip_and_metric() -> None:
     assert y == pytest.approx(m * math.pi / 10800.0, abs=0.01)
 
 
+@pytest.mark.parametrize("origin", [(49.0, 8.4), (34.58, -117.37), (-33.9, 151.2), (60.1, 24.9)])
+def test_local_frame_is_proj_from_the_crs_bit_for_bit_without_its_database(
+    origin: tuple[float, float],
+) -> None:
+    """The frame's written-out pipeline is what PROJ builds from EPSG:4326 and the tmerc definition,
+    to the bit; unlike that one it needs no database lookup on a thread's first call."""
+    import threading
+
+    import pyproj
+
+    lat, lon = origin
+    frame = LocalFrame(lat, lon)
+    crs = pyproj.CRS.from_proj4(
+        f"+proj=tmerc +lat_0={lat!r} +lon_0={lon!r} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+    )
+    fwd = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    inv = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    rng = np.random.default_rng(3)
+    la, lo = lat + rng.uniform(-0.05, 0.05, 200), lon + rng.uniform(-0.05, 0.05, 200)
+    x, y = frame.to_local_many(la, lo)
+    assert np.array_equal((x, y), fwd.transform(lo, la))
+    assert np.array_equal(frame.to_geodetic_many(x, y), inv.transform(x, y)[::-1])
+    seen: list[tuple[float, float]] = []
+    t = threading.Thread(target=lambda: seen.append(frame.to_local(lat + 0.01, lon + 0.01)))
+    t.start()
+    t.join()
+    assert seen == [fwd.transform(lon + 0.01, lat + 0.01)]
+    # A pipeline without CRSs: a thread's first call builds it without looking anything up in proj.db.
+    assert frame._fwd.source_crs is None and frame._inv.source_crs is None
+
+
 def test_heading_conversion_with_meridian_convergence() -> None:
     fr = LocalFrame(*ORIGIN)
     assert fr.heading_from_true_azimuth(0.0, *ORIGIN) == pytest.approx(math.pi / 2)
