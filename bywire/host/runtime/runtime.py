@@ -71,6 +71,7 @@ log = logging.getLogger("bywire.supervisor")
 # with a controlled stop, never a missing heartbeat (DESIGN section 4: the two faults differ).
 CHAIN_WAIT_S = 0.004
 MIN_SPIN_SAMPLE_S = 0.005  # real time over which a hung worker's CPU use is judged
+STARVED_PATIENCE = 10.0  # a module starved of the CPU is judged hung after this many hang_after_s
 SPIN_CPU_SHARE = 0.2  # a hung worker using more than this share of a CPU is spinning, not blocked
 START_TIMEOUT_S = 30.0  # wall time a worker may take to start (a process worker imports numpy...)
 HEALTH_WINDOW = 100  # releases the health topic's execution-time statistics cover (2 s at 50 Hz)
@@ -118,6 +119,7 @@ class Entry:
     pending: bool = False
     owed_tick: int | None = None  # the tick of a release held back while a producer computed
     released_tick: int = -1  # the tick of its newest release
+    rejudge: bool = False  # its late release was starved, not hung, when last looked at
     trigger_sub: Subscription[Any] | None = None
     restart_at_s: float | None = None
     restart_times: deque[float] = field(default_factory=deque)
@@ -478,12 +480,30 @@ class Runtime:
             last = w.stats.last_done_s if w.stats.last_done_s is not None else e.started_s
             return "crashed", "worker is gone without an exception (killed?)", last
         busy = w.busy_since_s
-        if busy is not None:
+        if busy is None:
+            e.rejudge = False
+        else:
             late = now_s - busy
             if late > spec.deadline_s and (e.busy_mark is None or e.busy_mark[2] != busy):
                 e.busy_mark = (time.perf_counter(), w.cpu_time_s(), busy)
             if late > spec.hang_after_s:
-                return self._classify_hang(e, w, busy, late)
+                if (
+                    e.rejudge
+                    and e.busy_mark is not None
+                    and time.perf_counter() - e.busy_mark[0] < MIN_SPIN_SAMPLE_S
+                ):
+                    return None  # starved at the last look: a fresh window is being measured
+                cause, detail, onset = self._classify_hang(e, w, busy, late)
+                if cause == "starved":
+                    if late <= STARVED_PATIENCE * spec.hang_after_s:
+                        # Kept off the CPU with the rest of the process (a loaded machine, a stalled
+                        # VM) is no fault of the module's, and a restart would only add work: look
+                        # again over a fresh window. A spinning one uses the CPU it gets: a hang.
+                        e.busy_mark = (time.perf_counter(), w.cpu_time_s(), busy)
+                        e.rejudge = True
+                        return None
+                    cause = "hang"  # starved for this long: no longer worth waiting for
+                return cause, detail, onset
             return None
         if w.stats.completed == e.seen_completed:
             return None  # slowness and silence are judged once per completed release
@@ -537,7 +557,7 @@ class Runtime:
         # Little CPU is not yet blocked: a thread that is runnable wants the CPU and was kept off it
         # (other processes, a stalled VM). A runnable thread is spinning or starved, never deadlocked.
         if w.run_state() == "R":
-            return "hang", f"{where}, runnable but kept off the CPU ({share:.0%} of a CPU)", busy_s
+            return "starved", f"{where}, runnable but kept off the CPU ({share:.0%} of a CPU)", busy_s
         return "deadlock", f"{where}, blocked ({share:.0%} of a CPU): deadlock or endless wait", busy_s
 
     def _handle(self, e: Entry, now_s: float, cause: str, detail: str, onset_s: float) -> None:

@@ -25,6 +25,7 @@ from bywire.host.runtime.module import (
 from bywire.host.runtime.runtime import Runtime
 from bywire.host.runtime.store import ObjectStore, StoreError
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
+from bywire.host.runtime.worker import ReleaseStats
 
 
 @dataclass(frozen=True)
@@ -164,7 +165,7 @@ class _LateWorker:
         return self.state
 
 
-@pytest.mark.parametrize(("state", "cause"), [("R", "hang"), ("S", "deadlock"), ("D", "deadlock")])
+@pytest.mark.parametrize(("state", "cause"), [("R", "starved"), ("S", "deadlock"), ("D", "deadlock")])
 def test_a_runnable_worker_with_little_cpu_is_starved_or_spinning_never_deadlocked(
     state: str, cause: str
 ) -> None:
@@ -176,6 +177,42 @@ def test_a_runnable_worker_with_little_cpu_is_starved_or_spinning_never_deadlock
     got, detail, _ = rt._classify_hang(entry, _LateWorker(state), 0.2, 0.06)  # type: ignore[arg-type]
     assert got == cause, detail
     assert ("kept off the CPU" in detail) == (state == "R")
+
+
+class _StarvedWorker(_LateWorker):
+    """A release begun at 0 s that is still runnable and barely gets the CPU (a loaded machine)."""
+
+    failure = None
+    busy_since_s = 0.0
+
+    def ready(self) -> bool:
+        return True
+
+    def alive(self) -> bool:
+        return True
+
+
+def test_a_starved_release_is_watched_not_restarted_until_it_outlasts_the_patience() -> None:
+    """A module kept off the CPU with the rest of its process is not hung: a restart would only add
+    work to a machine that has too much. It is looked at again over fresh windows, and called hung
+    only once it has been starved for STARVED_PATIENCE times its hang bound."""
+    from bywire.host.runtime.runtime import MIN_SPIN_SAMPLE_S, STARVED_PATIENCE
+
+    rt, _store = make_runtime({})
+    rt.start_s = 0.0
+    e = rt.entries["a"]
+    w = _StarvedWorker("R")
+    hang_s = e.spec.hang_after_s
+    assert rt._detect(e, w, hang_s + 0.01) is None and e.rejudge  # type: ignore[arg-type]
+    assert rt._detect(e, w, hang_s + 0.02) is None  # type: ignore[arg-type] # its window is still open
+    time.sleep(2 * MIN_SPIN_SAMPLE_S)
+    assert rt._detect(e, w, 5 * hang_s) is None  # type: ignore[arg-type]
+    time.sleep(2 * MIN_SPIN_SAMPLE_S)
+    cause, detail, onset = rt._detect(e, w, (STARVED_PATIENCE + 1) * hang_s)  # type: ignore[arg-type,misc]
+    assert cause == "hang" and "kept off the CPU" in detail and onset == 0.0
+    w.busy_since_s = None  # type: ignore[assignment] # done at last: the next release is judged afresh
+    w.stats = ReleaseStats()  # type: ignore[attr-defined]
+    assert rt._detect(e, w, 2.0) is None and not e.rejudge  # type: ignore[arg-type]
 
 
 def test_slow_module_is_detected_after_the_configured_misses_and_degraded() -> None:
