@@ -61,8 +61,43 @@ while True:
 """
 
 
+# The machine's own floor: a bare SCHED_FIFO 1 kHz loop that does nothing, in a process of its own,
+# under the same load. What it is late, every real-time process of the run is late too.
+_BARE_LOOP = """
+import json, os, sys, time
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(90))
+except (OSError, AttributeError):
+    pass
+late = []
+nxt = time.monotonic()
+end = nxt + float(sys.argv[1])
+while nxt < end:
+    nxt += 0.001
+    d = nxt - time.monotonic()
+    if d > 0:
+        time.sleep(d)
+    late.append(time.monotonic() - nxt)
+late.sort()
+q = lambda f: round(late[min(len(late) - 1, int(f * len(late)))] * 1e3, 3)
+print(json.dumps({"p50": q(0.5), "p99": q(0.99), "p999": q(0.999), "max": round(late[-1] * 1e3, 3)}))
+"""
+BARE_LOOP_S = 10.0
+
+
+def bare_loop_lateness_ms(seconds: float = BARE_LOOP_S) -> dict[str, float]:
+    out = subprocess.run(
+        [sys.executable, "-c", _BARE_LOOP, str(seconds)], capture_output=True, text=True, timeout=seconds + 30
+    )
+    doc: dict[str, float] = json.loads(out.stdout)
+    return doc
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load", action="store_true", help="add the standard background load (CPU hog + disk)")
+    p.add_argument(
+        "--no-disk", action="store_true", help="the load without its disk writer (the CPU hog alone)"
+    )
     p.add_argument("--runs", type=int, default=20, help="loaded runs of each scenario (default 20)")
     p.add_argument(
         "--unloaded-runs",
@@ -77,12 +112,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 @contextlib.contextmanager
-def background_load(folder: Path) -> Iterator[list[subprocess.Popen[bytes]]]:
+def background_load(folder: Path, disk: bool = True) -> Iterator[list[subprocess.Popen[bytes]]]:
     """The standard load: a CPU-bound process and a disk writer, both at normal priority."""
-    procs = [
-        subprocess.Popen([sys.executable, "-c", _CPU_HOG]),
-        subprocess.Popen([sys.executable, "-c", _DISK_WRITER, str(folder / "disk_load.bin")]),
-    ]
+    procs = [subprocess.Popen([sys.executable, "-c", _CPU_HOG])]
+    if disk:
+        procs.append(subprocess.Popen([sys.executable, "-c", _DISK_WRITER, str(folder / "disk_load.bin")]))
     try:
         yield procs
     finally:
@@ -233,14 +267,21 @@ def run_once(doc: dict[str, Any], folder: Path) -> dict[str, Any]:
 
 
 def measure(
-    names: tuple[str, ...], runs: int, loaded: bool, gcdc_seconds: float, keep: Path | None
+    names: tuple[str, ...],
+    runs: int,
+    loaded: bool,
+    gcdc_seconds: float,
+    keep: Path | None,
+    disk: bool = True,
 ) -> dict[str, Any]:
     per: dict[str, Tally] = {}
     log: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="bywire-bench-hil-") as tmp:
         base = keep if keep is not None else Path(tmp)
-        load = background_load(Path(tmp)) if loaded else contextlib.nullcontext()
+        load = background_load(Path(tmp), disk) if loaded else contextlib.nullcontext()
         with load:
+            floor = bare_loop_lateness_ms()
+            print(f"  machine floor (bare SCHED_FIFO 1 kHz loop, lateness ms): {floor}", flush=True)
             for k in range(runs):
                 for name in names:
                     tag = f"{'loaded' if loaded else 'unloaded'}-{name}-{k:02d}"
@@ -270,7 +311,13 @@ def measure(
         total.ecu_lateness_p99_ms += t.ecu_lateness_p99_ms
         for f, n in t.ecu_faults.items():
             total.ecu_faults[f] = total.ecu_faults.get(f, 0) + n
-    return {**total.doc(), "runs_per_scenario": runs, "scenarios": scenarios, "log": log}
+    return {
+        **total.doc(),
+        "runs_per_scenario": runs,
+        "machine_floor_lateness_ms": floor,
+        "scenarios": scenarios,
+        "log": log,
+    }
 
 
 def print_table(title: str, doc: dict[str, Any]) -> None:
@@ -288,6 +335,7 @@ def print_table(title: str, doc: dict[str, Any]) -> None:
             f"{s['heartbeat_gap_max_ms']:>12.1f}  {p['p99']:>8.1f} {p['max']:>8.1f}  "
             f"{s['ecu_lateness_ms']['max']:>12.2f}"
         )
+    print(f"machine floor (bare SCHED_FIFO 1 kHz loop, lateness ms): {doc['machine_floor_lateness_ms']}")
     if doc["ecu_faults"]:
         print(f"ECU faults (runs that saw them after engaging): {doc['ecu_faults']}")
 
@@ -309,8 +357,10 @@ def main(args: argparse.Namespace) -> int:
     unloaded = measure(names, unloaded_runs, False, args.gcdc_seconds, args.keep) if unloaded_runs else None
     doc: dict[str, Any]
     if args.load:
-        doc = measure(names, args.runs, True, args.gcdc_seconds, args.keep)
-        doc["load"] = "one CPU-bound process at normal priority + a disk writer (4 MiB blocks, fsync)"
+        doc = measure(names, args.runs, True, args.gcdc_seconds, args.keep, disk=not args.no_disk)
+        doc["load"] = "one CPU-bound process at normal priority" + (
+            "" if args.no_disk else " + a disk writer (4 MiB blocks, fsync)"
+        )
         doc["unloaded"] = unloaded
     else:
         assert unloaded is not None
