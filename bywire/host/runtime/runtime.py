@@ -495,7 +495,9 @@ class Runtime:
                     return None  # starved at the last look: a fresh window is being measured
                 cause, detail, onset = self._classify_hang(e, w, busy, late)
                 if cause == "starved":
-                    if late <= STARVED_PATIENCE * spec.hang_after_s:
+                    # In lockstep the runtime's time is the simulation's: a wall-clock starvation
+                    # does not move it, and a runnable worker is judged hung at once.
+                    if not self.lockstep and late <= STARVED_PATIENCE * spec.hang_after_s:
                         # Kept off the CPU with the rest of the process (a loaded machine, a stalled
                         # VM) is no fault of the module's, and a restart would only add work: look
                         # again over a fresh window. A spinning one uses the CPU it gets: a hang.

@@ -199,6 +199,7 @@ def test_a_starved_release_is_watched_not_restarted_until_it_outlasts_the_patien
     from bywire.host.runtime.runtime import MIN_SPIN_SAMPLE_S, STARVED_PATIENCE
 
     rt, _store = make_runtime({})
+    rt.lockstep = False  # on wall time (lockstep judges a runnable worker hung at once)
     rt.start_s = 0.0
     e = rt.entries["a"]
     w = _StarvedWorker("R")
