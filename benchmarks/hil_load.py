@@ -202,8 +202,9 @@ def _fault_names(bits: int) -> list[str]:
     return [str(f.name) for f in Fault if bits & int(f)]
 
 
-def judge_run(result: dict[str, Any], report: Path) -> dict[str, Any]:
-    """What one run's result and host trace say: pass, the first SAFE_STOP, faults seen, rhythms."""
+def judge_run(result: dict[str, Any], report: Path, duration_s: float = float("inf")) -> dict[str, Any]:
+    """What one run's result and host trace say: pass, the first SAFE_STOP before the scenario's end
+    (after it the plant stops sending and the ECU rightly stops the car), faults seen, rhythms."""
     host = read_trace(report / "host.csv", HOST_COLUMNS) if (report / "host.csv").exists() else None
     stop = None
     faults: set[str] = set()
@@ -214,7 +215,8 @@ def judge_run(result: dict[str, Any], report: Path) -> dict[str, Any]:
         after = engaged[0] if len(engaged) else len(state)
         for b in np.unique(bits[after:]):
             faults.update(_fault_names(int(b)))
-        stopped = np.flatnonzero(state == int(EcuState.SAFE_STOP))
+        during = host["t_s"] - host["t_s"][0] < duration_s
+        stopped = np.flatnonzero((state == int(EcuState.SAFE_STOP)) & during)
         if len(stopped):
             i = int(stopped[0])
             stop = {
@@ -261,7 +263,7 @@ def run_once(doc: dict[str, Any], folder: Path) -> dict[str, Any]:
         return {"error": f"timed out after {RUN_TIMEOUT_S:.0f} s", "wall_s": RUN_TIMEOUT_S}
     if not out.exists():
         return {"error": (proc.stderr or proc.stdout)[-2000:], "wall_s": time.monotonic() - t}
-    run = judge_run(json.loads(out.read_text(encoding="utf-8")), report)
+    run = judge_run(json.loads(out.read_text(encoding="utf-8")), report, float(doc["duration_s"]))
     run["wall_s"] = round(time.monotonic() - t, 1)
     return run
 

@@ -69,6 +69,7 @@ def test_the_load_benchmark_calls_any_safe_stop_spurious_and_merges_rhythms(tmp_
         "stalls": {"host": {"rhythm_ms": {"ecu_link": link.to_json()}}},
         "metrics": {"ecu_loop": {"host_link": {"heartbeat_gap_ms": link.to_json()}}},
     }
+    assert bench.judge_run(result, tmp_path, duration_s=1.9)["spurious_stop"] is None  # after the end
     run = bench.judge_run(result, tmp_path)
     assert run["spurious_stop"]["at_s"] == 2.0 and run["spurious_stop"]["faults"] == ["HOST_HEARTBEAT"]
     assert run["faults"] == ["HOST_HEARTBEAT"] and run["failed_checks"] == ["still_engaged"]
