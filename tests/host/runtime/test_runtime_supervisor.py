@@ -390,4 +390,3 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     for release_s, input_t_s in consumer_log:
         before = [s for s in slow_releases if s <= release_s]
         assert before and input_t_s == before[-1], (release_s, input_t_s, slow_releases)
-        assert release_s >= input_t_s + 0.03  # the slow step sleeps 30 ms: it ran after it was done
