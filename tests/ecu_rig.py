@@ -280,10 +280,16 @@ class WallRig(_Car):
             time.sleep(0.005)
         return pred()
 
+    def _release_seen(self) -> bool:
+        latest = self.ecu.node.latest_request()
+        return latest is not None and latest[0].flags == RELEASED
+
     def engage(self, timeout_s: float = 5.0) -> None:
         self.flags = RELEASED
         assert self.wait_for(lambda: self.state is EcuState.READY, timeout_s), self.state
-        self.wait(0.1)
+        # Engagement is an edge between fresh requests: the ECU must have taken a released one
+        # before the press (on a loaded machine 0.1 s of waiting did not always see one sent).
+        assert self.wait_for(self._release_seen, timeout_s), self.ecu.node.latest_request()
         self.flags = ENGAGE
         assert self.wait_for(lambda: self.state is EcuState.ENGAGED, timeout_s), (
             self.state,
