@@ -31,6 +31,7 @@ from bywire.host.perception.segmentation import (
     ParticipantShape,
     SegmentationParams,
     SegmentedObject,
+    box_corners_m,
     segment,
 )
 
@@ -70,10 +71,7 @@ class LabelledBox:
 
     def corners_m(self) -> F64:
         """The box's four ground corners (4, 2), counter-clockwise."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        u = np.array([1.0, -1.0, -1.0, 1.0]) * self.length_m / 2
-        v = np.array([1.0, 1.0, -1.0, -1.0]) * self.width_m / 2
-        return np.column_stack((self.x_m + c * u - s * v, self.y_m + s * u + c * v))
+        return box_corners_m(self.x_m, self.y_m, self.length_m, self.width_m, self.yaw_rad)
 
 
 @dataclass(frozen=True)

@@ -63,10 +63,15 @@ class SegmentedObject:
 
     def corners_m(self) -> F64:
         """The box's four corners (4, 2), counter-clockwise."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        u = np.array([1.0, -1.0, -1.0, 1.0]) * self.length_m / 2
-        v = np.array([1.0, 1.0, -1.0, -1.0]) * self.width_m / 2
-        return np.column_stack((self.x_m + c * u - s * v, self.y_m + s * u + c * v))
+        return box_corners_m(self.x_m, self.y_m, self.length_m, self.width_m, self.yaw_rad)
+
+
+def box_corners_m(x_m: float, y_m: float, length_m: float, width_m: float, yaw_rad: float) -> F64:
+    """The four corners (4, 2) of an oriented box on the ground plane, counter-clockwise."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    u = np.array([1.0, -1.0, -1.0, 1.0]) * length_m / 2
+    v = np.array([1.0, 1.0, -1.0, -1.0]) * width_m / 2
+    return np.column_stack((x_m + c * u - s * v, y_m + s * u + c * v))
 
 
 @dataclass(frozen=True)
