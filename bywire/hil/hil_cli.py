@@ -49,6 +49,12 @@ def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -
         type=Path,
         help="OpenACC or CARMA CSV: the first car's speed drives the scenario's replay leader",
     )
+    p.add_argument(
+        "--perception",
+        choices=("perfect", "lidar"),
+        help="urban scenarios: the host perceives the traffic from the simulator's object list (perfect) "
+        "or from the simulated Velodyne (lidar); default: the scenario's `perception:`",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -83,6 +89,7 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
         ecu_store=args.ecu_store,
         progress=progress,
         leader_profile=args.leader_profile,
+        perception=args.perception,
     )
     for check in result["checks"]:
         mark = "PASS" if check["passed"] else "FAIL"

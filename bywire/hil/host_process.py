@@ -11,7 +11,7 @@ import logging
 
 from bywire.hil.host_inputs import host_inputs
 from bywire.hil.module_faults import ModuleFaultInjector, check_module_faults
-from bywire.hil.scenario import load_scenario
+from bywire.hil.scenario import load_scenario, with_perception
 from bywire.host.config import load_host_config
 from bywire.host.main import run_host
 
@@ -22,6 +22,8 @@ def main(args: argparse.Namespace) -> int:
         if getattr(args, flag) is not None:
             raise SystemExit(f"host run: --{flag.replace('_', '-')} and --scenario exclude each other")
     scenario = load_scenario(args.scenario)
+    if args.perception is not None:
+        scenario = with_perception(scenario, args.perception)
     config = load_host_config(args.config or scenario.host_config)
     check_module_faults(scenario, config)
     faults = ModuleFaultInjector(scenario, 0.0, in_process=False)

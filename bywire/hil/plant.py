@@ -84,6 +84,10 @@ class PlantLinks:
     unix_time: Callable[[float], float] | None = None  # scenario time -> UNIX s (V2V generation stamps)
     replay_profile: Sequence[tuple[float, float]] = field(default_factory=tuple)
     objects_send: Callable[[bytes], Any] | None = None  # the urban world's object-list datagrams
+    # The urban world's LIDAR revolutions (`perception: lidar`), and whether they are cast off the
+    # plant's loop (HIL: a cast takes longer than a step) or in it (SIL: deterministic).
+    scans_send: Callable[[bytes], Any] | None = None
+    lidar_threaded: bool = False
 
 
 @dataclass
@@ -128,6 +132,16 @@ class Plant:
         self.urban: UrbanWorldSim | None = None
         if scenario.urban is not None:
             self.urban = UrbanWorldSim(scenario.urban, scenario.seed, self.links.objects_send)
+            if scenario.urban.perception == "lidar" and self.links.scans_send is not None:
+                from bywire.hil.lidar.sensor_link import LidarSender
+
+                self.urban.lidar = LidarSender(
+                    self.urban.world,
+                    scenario.urban.lidar,
+                    self.links.scans_send,
+                    scenario.seed,
+                    threaded=self.links.lidar_threaded,
+                )
         self._world_t_s = -1.0
         self._applied = _Actuation()
         self.gear = Gear.DRIVE  # engaged

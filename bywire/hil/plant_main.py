@@ -23,7 +23,7 @@ from typing import Any
 from bywire.clock import WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
 from bywire.hil.plant import Plant, PlantLinks
-from bywire.hil.scenario import load_scenario
+from bywire.hil.scenario import load_scenario, with_perception
 from bywire.hil.sil import open_scenario_vehicle
 from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import FdWriter
@@ -59,6 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--leader-profile", type=Path, help="OpenACC or CARMA CSV: the replay vehicle's speed")
     p.add_argument("--objects", help="object link of an urban world, e.g. udp://127.0.0.1:47200")
     p.add_argument("--urban-summary", type=Path, help="write the urban world's bookkeeping as JSON")
+    p.add_argument("--scans", help="LIDAR scan link of an urban world, e.g. tcp://127.0.0.1:47300")
+    p.add_argument(
+        "--perception", choices=("perfect", "lidar"), help="how the urban host perceives the traffic"
+    )
     p.add_argument(
         "--rt-priority",
         type=int,
@@ -69,6 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    if args.perception is not None:
+        scenario = with_perception(scenario, args.perception)
     if args.duration is not None:
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
     clock = WallClock()
@@ -86,6 +92,7 @@ def main(args: argparse.Namespace) -> int:
     )
     v2x: Any = None
     objects: Any = None
+    scans: Any = None
     gps: FdWriter | None = None
     profile: tuple[tuple[float, float], ...] = ()
     if args.leader_profile is not None:
@@ -108,6 +115,10 @@ def main(args: argparse.Namespace) -> int:
             from bywire.protocol.objects import open_object_link
 
             objects = open_object_link(args.objects, receiver=False)
+        if args.scans:
+            from bywire.protocol.lidar.scan_link import open_scan_link
+
+            scans = open_scan_link(args.scans, receiver=False)
         if scenario.world is not None:
             # The V2V senders' ASN.1 compile (~0.1-0.2 s of pyparsing) here, not in the first step:
             # seen in HIL, it held the plant's loop for 109 ms and the ECU stopped the car.
@@ -127,6 +138,8 @@ def main(args: argparse.Namespace) -> int:
             unix_time=lambda t: t0_unix + t,
             replay_profile=profile,
             objects_send=objects.send if objects is not None else None,
+            scans_send=scans.send if scans is not None else None,
+            lidar_threaded=True,
         )
         plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace, links=links)
         stats = CycleStats()
@@ -158,8 +171,11 @@ def main(args: argparse.Namespace) -> int:
             args.world_summary.write_text(json.dumps(plant.world.summary(), indent=1), encoding="utf-8")
         if plant is not None and plant.urban is not None and args.urban_summary is not None:
             args.urban_summary.write_text(json.dumps(plant.urban.summary(), default=str), encoding="utf-8")
-        if objects is not None:
-            objects.close()
+        if plant is not None and plant.urban is not None and plant.urban.lidar is not None:
+            plant.urban.lidar.close()
+        for lk in (objects, scans):
+            if lk is not None:
+                lk.close()
         if v2x is not None:
             v2x.close()
         if gps is not None:

@@ -22,10 +22,16 @@ def run_scenario(
     ecu_store: Path | None = None,
     progress: Callable[[float], None] | None = None,
     leader_profile: Path | None = None,
+    perception: str | None = None,
 ) -> dict[str, Any]:
     """Run one scenario and return the result document (also written to `json_path` / `report_dir`).
-    `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle."""
+    `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle;
+    `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's)."""
     scenario = load_scenario(name_or_file)
+    if perception is not None:
+        from bywire.hil.scenario import with_perception
+
+        scenario = with_perception(scenario, perception)
     profile: tuple[tuple[float, float], ...] = ()
     if leader_profile is not None:
         from bywire.hil.world.replay import leader_profile_from_csv

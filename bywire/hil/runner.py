@@ -171,6 +171,13 @@ def run_hil(
         objects_url = f"udp://127.0.0.1:{free_udp_port()}"
         plant_world_args += ["--objects", objects_url, "--urban-summary", str(run_dir / "urban.json")]
         host_world_args += ["--objects", objects_url]
+        perception = scenario.urban.perception
+        plant_world_args += ["--perception", perception]
+        host_world_args += ["--perception", perception]
+        if perception == "lidar":
+            scans_url = f"tcp://127.0.0.1:{free_port()}"
+            plant_world_args += ["--scans", scans_url]
+            host_world_args += ["--scans", scans_url]
     vehicle_port = free_port()
     vehicle_url = f"remote:ws://127.0.0.1:{vehicle_port}/"
     children.append(

@@ -8,6 +8,7 @@ safety scenario that silently does nothing is worse than no scenario.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -311,6 +312,9 @@ def parse_scenario(data: Any, source: str) -> Scenario:
             raise ScenarioError(
                 source, "host.lead", "give the lead car as a world vehicle when there is a world"
             )
+    perception = r.string("perception", default="perfect", choices=PERCEPTION_MODES)
+    if r.has("perception") and not r.has("urban"):
+        raise r.error("perception", "only an urban scenario has a perception mode (no urban: section)")
     urban = None
     if r.has("urban"):
         urban = parse_urban(r.raw("urban"), source, "urban", ScenarioError)
@@ -323,7 +327,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     r.finish()
     if fault_ref is None and faults:
         fault_ref = min(f.at_s for f in faults)
-    return Scenario(
+    scenario = Scenario(
         name=name,
         description=description,
         source=source,
@@ -356,6 +360,29 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         extra=dict(extra),
         world=world,
         urban=urban,
+    )
+    return with_perception(scenario, perception) if urban is not None else scenario
+
+
+# What an urban host perceives the other cars by: the world's object list, or the simulated LIDAR.
+PERCEPTION_MODES = ("perfect", "lidar")
+# The host configuration that perceives with the LIDAR, per configuration that takes the object list.
+LIDAR_HOST_CONFIGS = {"urban": "urban_lidar"}
+
+
+def with_perception(scenario: Scenario, mode: str) -> Scenario:
+    """`scenario` with its host perceiving by `mode` (`perfect` | `lidar`): the world's setting and the
+    host configuration that goes with it (`urban` <-> `urban_lidar`; a scenario's own file is kept)."""
+    if mode not in PERCEPTION_MODES:
+        raise ValueError(f"perception {mode!r}: expected one of {', '.join(PERCEPTION_MODES)}")
+    if scenario.urban is None:
+        raise ValueError(f"{scenario.name}: only an urban scenario has a perception mode")
+    config = scenario.host_config
+    to_lidar = dict(LIDAR_HOST_CONFIGS)
+    to_perfect = {v: k for k, v in to_lidar.items()}
+    config = (to_lidar if mode == "lidar" else to_perfect).get(config, config)
+    return dataclasses.replace(
+        scenario, host_config=config, urban=dataclasses.replace(scenario.urban, perception=mode)
     )
 
 
@@ -409,6 +436,7 @@ def load_scenario(name_or_file: str) -> Scenario:
 
 
 __all__ = [
+    "PERCEPTION_MODES",
     "Check",
     "EcuState",
     "FaultEvent",
@@ -420,4 +448,5 @@ __all__ = [
     "parse_scenario",
     "ramp_value",
     "step_value",
+    "with_perception",
 ]

@@ -11,7 +11,9 @@ with the scenario's epoch + simulated time), the GPS receiver's serial line as a
 second host reader of vehicle CAN for the odometry frames (wheel speeds, yaw rate).
 
 An urban scenario gets the object link in process (`protocol.objects.MemObjectLink`): the plant's
-urban world sends our pose and the object list, the host's `urban_io` reads them, in order.
+urban world sends our pose and the object list, the host's `urban_io` reads them, in order. With
+`perception: lidar` the plant casts the simulated Velodyne's revolutions in its step and the host's
+`lidar_io` reads them off an in-process scan link (`protocol.lidar.scan_link.MemScanLink`).
 """
 
 from __future__ import annotations
@@ -123,6 +125,12 @@ def run_sil(
 
         objects_link = MemObjectLink(f"sil-objects-{tag}")
         links.objects_send = objects_link.send
+    scans_link: Any = None
+    if scenario.urban is not None and scenario.urban.perception == "lidar":
+        from bywire.protocol.lidar.scan_link import MemScanLink
+
+        scans_link = MemScanLink(f"sil-scans-{tag}")
+        links.scans_send = scans_link.send
     try:
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace, links=links)
         ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
@@ -145,6 +153,7 @@ def run_sil(
             ),
             unix_time=(lambda now: world.v2v.epoch_unix_s + now) if world is not None else None,
             objects=objects_link,
+            scans=scans_link,
         )
         if recorder is not None and recorder.mcap is not None:
             host.store.add_tap(recorder.mcap.record)  # topics and frames in one file, one clock
@@ -193,8 +202,9 @@ def run_sil(
         plant_trace.close()
         host_trace.close()
         traffic_trace.close()
-        if objects_link is not None:
-            objects_link.close()
+        for lk in (objects_link, scans_link):
+            if lk is not None:
+                lk.close()
         for t in (v2x_host, v2x_plant):
             if t is not None:
                 t.close()

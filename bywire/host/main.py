@@ -74,6 +74,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--gps-serial", help="GPS/INS serial port (path or pyserial URL); default: the configuration's"
     )
     p.add_argument("--objects", help="object link (pose + object list), udp://127.0.0.1:PORT or mem://NAME")
+    p.add_argument("--scans", help="LIDAR scan link (revolutions), tcp://127.0.0.1:PORT or mem://NAME")
+    p.add_argument(
+        "--perception",
+        choices=("perfect", "lidar"),
+        help="simulator only, with --scenario: perceive an urban scenario's traffic this way",
+    )
     p.add_argument("--trace", type=Path, help="CSV trace of the host's requests")
     p.add_argument("--summary", type=Path, help="write module timing and supervisor events as JSON at exit")
     p.add_argument("--record", type=Path, help="record every topic to this MCAP file")
@@ -124,6 +130,8 @@ def car_inputs(args: argparse.Namespace) -> HostInputs:
 def main(args: argparse.Namespace) -> int:
     if args.scenario is not None:
         raise SystemExit("host run: --scenario needs the simulator (run it as `bywire host run`)")
+    if args.perception is not None:
+        raise SystemExit("host run: --perception belongs to a simulated scenario (--scenario)")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     config = load_host_config(args.config or "default")
     return run_host(args, config, car_inputs(args))
@@ -150,6 +158,11 @@ def run_host(
         from bywire.protocol.objects import open_object_link
 
         objects = open_object_link(args.objects, receiver=True)
+    scans: Any = None
+    if args.scans:
+        from bywire.protocol.lidar.scan_link import open_scan_link
+
+        scans = open_scan_link(args.scans, receiver=True)
     if v2x_url:
         from bywire.protocol.v2x.transport import open_v2x
 
@@ -199,6 +212,7 @@ def run_host(
             vehicle_bus=vehicle_bus,  # type: ignore[arg-type]
             unix_time=lambda now: now + unix_offset,
             objects=objects,
+            scans=scans,
             heartbeat_sent=lambda now: stalls.beat("ecu_link", now),
         )
         if not agent.prestart():
@@ -252,6 +266,7 @@ def run_host(
             v2x.close()
         if gps is not None:
             gps.close()
-        if objects is not None:
-            objects.close()
+        for lk in (objects, scans):
+            if lk is not None:
+                lk.close()
     return 0

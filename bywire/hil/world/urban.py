@@ -588,6 +588,8 @@ class UrbanWorld:
         """Our rear-axle pose (with the pose noise) and, when due, every car within range (with noise)."""
         x, y, h, v, r = self.ego
         ps = self.spec.pose
+        dx, dy = ps.map_offset_m
+        x, y = x + dx, y + dy
         if ps.position_noise_m > 0.0:
             x += float(self.rng.normal(0.0, ps.position_noise_m))
             y += float(self.rng.normal(0.0, ps.position_noise_m))
@@ -599,7 +601,7 @@ class UrbanWorld:
             for i, c in enumerate(self.cars):
                 if math.hypot(c.x_m - x, c.y_m - y) > ob.range_m:
                     continue
-                ox, oy, oh, ov = c.x_m, c.y_m, c.heading_rad, c.v_mps
+                ox, oy, oh, ov = c.x_m + dx, c.y_m + dy, c.heading_rad, c.v_mps
                 if ob.position_noise_m > 0.0:
                     ox += float(self.rng.normal(0.0, ob.position_noise_m))
                     oy += float(self.rng.normal(0.0, ob.position_noise_m))
@@ -635,13 +637,23 @@ class UrbanWorld:
 
 class UrbanWorldSim:
     """The plant's handle: steps the world at its events and sends the object list (`send`) at the
-    pose rate, with the objects at the object rate."""
+    pose rate, with the objects at the object rate. With `perception: lidar` the object list carries our
+    pose only, and `lidar` (a `hil.lidar.sensor_link.LidarSender`, or anything with `due(t)` and
+    `revolution(t)`) takes a revolution of the world as it is whenever one is due."""
 
-    def __init__(self, spec: UrbanSpec, seed: int, send: Callable[[bytes], Any] | None = None) -> None:
+    def __init__(
+        self,
+        spec: UrbanSpec,
+        seed: int,
+        send: Callable[[bytes], Any] | None = None,
+        lidar: Any = None,
+    ) -> None:
         from bywire.protocol.objects import encode
 
         self.world = UrbanWorld(spec, seed)
         self.send = send
+        self.lidar = lidar
+        self._objects = spec.perception == "perfect"
         self._encode = encode
         self._next_pose_s = 0.0
         self._next_objects_s = 0.0
@@ -651,11 +663,13 @@ class UrbanWorldSim:
         self, t_s: float, x_m: float, y_m: float, heading_rad: float, speed_mps: float, yaw_rate_radps: float
     ) -> None:
         self.world.step(t_s, x_m, y_m, heading_rad, speed_mps, yaw_rate_radps)
+        if self.lidar is not None and self.lidar.due(t_s):
+            self.lidar.revolution(self.world, t_s)
         if self.send is None or t_s < self._next_pose_s - 1e-9:
             return
         spec = self.world.spec
         self._next_pose_s = max(self._next_pose_s + 1.0 / spec.pose.rate_hz, t_s)
-        with_objects = t_s >= self._next_objects_s - 1e-9
+        with_objects = self._objects and t_s >= self._next_objects_s - 1e-9
         if with_objects:
             self._next_objects_s = max(self._next_objects_s + 1.0 / spec.objects.rate_hz, t_s)
         self.send(self._encode(self.world.object_list(t_s, with_objects)))
@@ -664,6 +678,10 @@ class UrbanWorldSim:
     def summary(self) -> dict[str, Any]:
         out = self.world.summary()
         out["object_lists_sent"] = self.sent
+        out["perception"] = self.world.spec.perception
+        out["map_offset_m"] = list(self.world.spec.pose.map_offset_m)
+        if self.lidar is not None:
+            out["lidar"] = self.lidar.summary()
         return out
 
 

@@ -70,6 +70,12 @@ class PoseSpec:
     rate_hz: float = 100.0
     position_noise_m: float = 0.0
     heading_noise_rad: float = 0.0
+    # The map's error (seed 000 Sec. 6: "a systematic error of RNDF data in some areas"): the simulated
+    # road lies this far (east, north) from where the RNDF has it. The world stays on the RNDF's geometry
+    # and reports our pose, and the perfect object list, moved by it: to a host, a constant translation
+    # between its map and its position fix cannot be told from a map that is off by it, and the LIDAR
+    # sees the world around the car, wherever the car thinks it is.
+    map_offset_m: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,16 @@ class ScenerySpec:
 
 
 @dataclass(frozen=True)
+class LidarSpec:
+    """The simulated Velodyne's settings (`hil.lidar.velodyne.SimulatedVelodyne`)."""
+
+    rate_hz: float = 10.0
+    azimuth_steps: int = 2000
+    range_noise_m: float = 0.02
+    dropout_probability: float = 0.02
+
+
+@dataclass(frozen=True)
 class UrbanSpec:
     rndf: str  # resolved absolute path
     mdf: str
@@ -110,6 +126,11 @@ class UrbanSpec:
     ego_length_m: float = 4.77
     ego_width_m: float = 1.82
     scenery: ScenerySpec = ScenerySpec()
+    # What the host perceives the other cars by (the scenario's top-level `perception:` key): `perfect`,
+    # the world's object list; `lidar`, the simulated Velodyne's revolutions (`hil.lidar`), the object list
+    # then carrying our pose only.
+    perception: str = "perfect"
+    lidar: LidarSpec = LidarSpec()
 
 
 def shared_data_root() -> Path:
@@ -252,8 +273,17 @@ def parse_urban(
         rate_hz=po.number("rate_hz", default=100.0, lo=10.0, hi=100.0),
         position_noise_m=po.number("position_noise_m", default=0.0, lo=0.0, hi=2.0),
         heading_noise_rad=po.number("heading_noise_rad", default=0.0, lo=0.0, hi=0.2),
+        map_offset_m=_pair(po, "map_offset_m", 10.0),
     )
     po.finish()
+    li = r.sub("lidar")
+    lidar = LidarSpec(
+        rate_hz=li.number("rate_hz", default=10.0, lo=5.0, hi=20.0),
+        azimuth_steps=int(li.number("azimuth_steps", default=2000.0, lo=90.0, hi=4000.0)),
+        range_noise_m=li.number("range_noise_m", default=0.02, lo=0.0, hi=1.0),
+        dropout_probability=li.number("dropout_probability", default=0.02, lo=0.0, hi=0.9),
+    )
+    li.finish()
     spec = UrbanSpec(
         rndf=rndf,
         mdf=mdf,
@@ -265,13 +295,27 @@ def parse_urban(
         speed_tolerance_mps=r.number("speed_tolerance_mps", default=0.5, lo=0.0, hi=10.0),
         stop_tolerance_m=r.number("stop_tolerance_m", default=1.0, lo=0.1, hi=10.0),
         scenery=_scenery(r.sub("scenery")),
+        lidar=lidar,
     )
     r.finish()
     return spec
 
 
+def _pair(r: Reader, key: str, limit: float) -> tuple[float, float]:
+    raw = r.raw(key, [0.0, 0.0])
+    if (
+        not isinstance(raw, list | tuple)
+        or len(raw) != 2
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in raw)
+        or not all(abs(float(v)) <= limit for v in raw)
+    ):
+        raise r.error(key, f"expected [east, north] in metres, each within +-{limit}, got {raw!r}")
+    return float(raw[0]), float(raw[1])
+
+
 __all__ = [
     "BuildingSpec",
+    "LidarSpec",
     "ObjectsSpec",
     "PoseSpec",
     "ScenerySpec",
