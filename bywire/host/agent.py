@@ -51,6 +51,7 @@ class HostAgent:
         vehicle_bus: can.BusABC | None = None,
         unix_time: Callable[[float], float] | None = None,
         objects: Any = None,
+        scans: Any = None,
         heartbeat_sent: Callable[[float], None] | None = None,
     ) -> None:
         self.inputs = inputs
@@ -71,6 +72,7 @@ class HostAgent:
             vehicle_bus=vehicle_bus,
             unix_time=unix_time,
             objects=objects,
+            scans=scans,
             faults=self.faults,
             heartbeat_sent=heartbeat_sent,
         )
@@ -188,7 +190,7 @@ class HostAgent:
     def urban_summary(self) -> dict[str, Any]:
         """The urban modules' log: the behaviour's state history, faults, the checkpoints it
         counted, backward legs held. Empty without them."""
-        if not self.config.uses("urban_io", "urban_behaviour", "urban_control"):
+        if not self.config.uses("urban_io", "urban_pose", "urban_behaviour", "urban_control"):
             return {}
         out: dict[str, Any] = self.resources.urban_log().summary()
         out["t0_s"] = self.t0_s  # the state history's times are on the runtime clock

@@ -14,16 +14,19 @@ an exit: that of the exit's start plus the arc length along the exit). Our own a
 out (vehicles on it are leads or followers: the following controller's business). Where a vehicle's
 way is unknown, every candidate counts (conservative: it may take any exit).
 
-Each cycle (`update`): objects seen stopped at another stop line (front bumper within
-`STOP_LINE_ZONE_M` before / `STOP_LINE_PAST_M` past it, within 2 m of the lane, heading within 45 deg)
-are the waiting vehicles of `IntersectionPrecedence` with the time we first saw them stopped there as
-their arrival; one that pulls away stays at its line until it is past that zone, by when its centre is
-in the box (so it never drops out of the queue between line and box); objects with their centre inside
-the box are in the box (both at once counts as in the box, precedence.py's rule). `mtc()` runs the
-moving-traffic check for the vehicles on lanes with the right of way over our turn
+Each cycle (`update`): objects seen stopped at another stop line (front bumper within `STOP_LINE_ZONE_M`
+before / `STOP_LINE_PAST_M` past it, within 2 m of the lane, heading within 45 deg) are the waiting
+vehicles of `IntersectionPrecedence` with the time we first saw them stopped there as their arrival; a
+vehicle whose track ends at a stop line still waits there for `REACQUIRE_S`, and a new track that appears
+at that line within it (moving or not) is that vehicle, which keeps its arrival (a LIDAR tracker loses a
+waiting car when another drives between us and it, and finds it again under a new id, often as it starts
+its turn: hidden is not gone); one that pulls away stays at its line until it is past that zone, by when
+its centre is in the box (so it never drops out of the queue between line and box); objects with their
+centre inside the box are in the box (both at once counts as in the box, precedence.py's rule). `mtc()`
+runs the moving-traffic check for the vehicles on lanes with the right of way over our turn
 (`precedence.right_of_way`, cases a-c), each with the situation's parameter set: d_B = MP (lane
-coordinate) - B's front bumper, d_A = MP (route) - our front bumper; conflicts whose window we have
-left (d_A < -D_A2) are dropped.
+coordinate) - B's front bumper, d_A = MP (route) - our front bumper; conflicts whose window we have left
+(d_A < -D_A2) are dropped.
 """
 
 from __future__ import annotations
@@ -68,6 +71,9 @@ _SIDE_TO_APPROACH: dict[Side, Approach] = {
 # A turn of less than 30 deg through the intersection is "straight" (ours: RNDF exits that go straight
 # on bend by a few degrees where lanes are offset).
 _STRAIGHT_MAX_RAD = math.radians(30.0)
+# A track lost at a stop line and one found there this soon after are one car (see the docstring): a
+# car passing between us and it hides it for a second or two at urban speeds.
+REACQUIRE_S = 3.0
 _OWN_BACK_M = 10.0  # our path through the crossing starts this far before the approach waypoint
 _OWN_ON_M = 25.0  # ... and runs on this far past the crossing edge
 _LANE_BACK_M = 20.0  # a lane's own way through the intersection: from this far before its touch point
@@ -233,6 +239,8 @@ class IntersectionManager:
             for line in crossing.stop_lines
         }
         self._first_seen: dict[tuple[str, str], float] = {}
+        # per stop line: (arrival, when lost) of a waiting vehicle whose track ended there (see update)
+        self._lost_at_line: dict[str, tuple[float, float, str]] = {}
         self._conflicts_by_lane: dict[LaneId, list[Conflict]] = {}
         for c in crossing.conflicts:
             self._conflicts_by_lane.setdefault(c.lane, []).append(c)
@@ -266,6 +274,11 @@ class IntersectionManager:
             if line is not None:
                 key = (obj.object_id, line)
                 seen.add(key)
+                if key not in self._first_seen:
+                    lost = self._lost_at_line.pop(line, None)
+                    # a new track where one was lost a moment ago: the same car, seen again
+                    if lost is not None and t_s - lost[1] <= REACQUIRE_S:
+                        self._first_seen[key] = lost[0]
                 arrived = self._first_seen.setdefault(key, t_s)
                 waiting.append(WaitingVehicle(obj.object_id, line, arrived))
             if info.in_box(obj.x_m, obj.y_m):
@@ -278,7 +291,16 @@ class IntersectionManager:
                 and math.hypot(obj.x_m - cx, obj.y_m - cy) < rules.TRAFFIC_NEAR_M
             ):
                 moving = True
+        for (oid, line), arrived in self._first_seen.items():
+            if (oid, line) not in seen and oid not in box:
+                self._lost_at_line[line] = (arrived, t_s, oid)
         self._first_seen = {k: v for k, v in self._first_seen.items() if k in seen}
+        # A waiting car whose track was lost still waits until REACQUIRE_S has passed: hidden is not gone.
+        taken = {line for _, line in seen}
+        self._lost_at_line = {k: v for k, v in self._lost_at_line.items() if t_s - v[1] <= REACQUIRE_S}
+        for line, (arrived, _, oid) in self._lost_at_line.items():
+            if line not in taken and oid not in box:
+                waiting.append(WaitingVehicle(oid, line, arrived))
         self.waiting = tuple(waiting)
         self.in_box = tuple(box)
         self._positions = positions
@@ -292,10 +314,20 @@ class IntersectionManager:
             self.precedence.arrive(t_s)
             self.decision = self.precedence.update(t_s, self.waiting, self.in_box)
 
+    def _reacquiring(self, line_id: str) -> bool:
+        """A waiting vehicle's track was lost at this line a moment ago (its new track may be moving:
+        the car started its turn while it was hidden)."""
+        lost = self._lost_at_line.get(line_id)
+        return lost is not None and self._last_t - lost[1] <= REACQUIRE_S
+
     def _at_line(self, obj: TrackedObject) -> str | None:
         """The stop line `obj` waits at: stopped there, or registered there and not yet in the box."""
         for line_id, ((lx, ly), heading) in self._line_pose.items():
-            if obj.speed_mps > rules.STOPPED_SPEED_MPS and (obj.object_id, line_id) not in self._first_seen:
+            if (
+                obj.speed_mps > rules.STOPPED_SPEED_MPS
+                and (obj.object_id, line_id) not in self._first_seen
+                and not self._reacquiring(line_id)
+            ):
                 continue
             c, s = math.cos(heading), math.sin(heading)
             along = (obj.x_m - lx) * c + (obj.y_m - ly) * s

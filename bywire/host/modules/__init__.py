@@ -26,6 +26,7 @@ import can
 from bywire.host.inputs import HostFaultHooks, HostInputs, NoFaults
 from bywire.host.modules import gcdc_messages as g
 from bywire.host.modules import messages as m
+from bywire.host.modules import perception_messages as pm
 from bywire.host.modules import urban_messages as u
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
@@ -50,7 +51,9 @@ class HostResources:
     vehicle_bus: can.BusABC | None = None
     unix_time: Callable[[float], float] | None = None
     # Urban driving (seed 000): the object link (`protocol.objects.open_object_link`: read by `urban_io`)
+    # and the LIDAR's scan link (`protocol.lidar.scan_link.open_scan_link`: read by `lidar_io`)
     objects: Any = None
+    scans: Any = None
     faults: HostFaultHooks = field(default_factory=NoFaults)
     heartbeat_sent: Callable[[float], None] | None = None  # told of every heartbeat (a stall recorder)
 
@@ -112,7 +115,7 @@ class HostResources:
                 self.local_frame()
             if mod.kind == "world_model":
                 self.lane_map(mod.params.get("map_file"))
-            if mod.kind == "urban_behaviour":
+            if mod.kind in ("urban_behaviour", "lane_offset"):
                 self.urban_network()
             if mod.kind in ("v2v_rx", "v2v_tx"):
                 from bywire.protocol.v2x.codec import compiled_spec
@@ -286,6 +289,32 @@ def _urban_io(params: Mapping[str, Any], res: HostResources | None) -> Module:
     return UrbanIo(res.objects if res is not None else None, res.urban_log() if res is not None else None)
 
 
+def _urban_pose(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.io.object_link import UrbanIo
+
+    assert res is not None
+    return UrbanIo(res.objects, res.urban_log(), objects=False)
+
+
+def _lidar_io(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.io.lidar_link import LidarIo
+
+    return LidarIo(res.scans if res is not None else None)
+
+
+def _lidar_perception(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.estimation.lidar_perception import LidarPerception
+
+    return LidarPerception(params)
+
+
+def _lane_offset(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.estimation.lane_offset import LaneOffsetModule
+
+    assert res is not None
+    return LaneOffsetModule(res.urban_network()[2], params)
+
+
 def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Module:
     from bywire.host.behaviour.behaviour import Behaviour
     from bywire.host.modules.planning.urban_behaviour import UrbanBehaviour
@@ -399,8 +428,47 @@ KINDS: dict[str, ModuleKind] = {
             doc="pose and object list off the object link",
         ),
         ModuleKind(
+            "urban_pose",
+            (),
+            (u.URBAN_POSE,),
+            0.01,
+            0.005,
+            _urban_pose,
+            doc="pose off the object link (the objects are the LIDAR's)",
+        ),
+        # The LIDAR perception (seed 000 Sec. 4-6): a revolution every 100 ms, looked for every 50 ms.
+        ModuleKind(
+            "lidar_io",
+            (),
+            (pm.PERCEPTION_SCAN,),
+            0.05,
+            0.010,
+            _lidar_io,
+            doc="the newest LIDAR revolution off the scan link",
+        ),
+        ModuleKind(
+            "lidar_perception",
+            (pm.PERCEPTION_SCAN, u.URBAN_POSE),
+            (u.URBAN_OBJECTS, pm.PERCEPTION_STATUS),
+            0.05,
+            0.045,
+            _lidar_perception,
+            False,
+            "seed 000 Sec. 4-5 occupancy grid, objects and tracks",
+        ),
+        ModuleKind(
+            "lane_offset",
+            (pm.PERCEPTION_SCAN, u.URBAN_POSE),
+            (pm.LANE_OFFSET,),
+            0.05,
+            0.045,
+            _lane_offset,
+            False,
+            "seed 000 Sec. 6 the map's lateral offset from the lane markings",
+        ),
+        ModuleKind(
             "urban_behaviour",
-            (u.URBAN_POSE, u.URBAN_OBJECTS, m.ECU_STATUS),
+            (u.URBAN_POSE, u.URBAN_OBJECTS, m.ECU_STATUS, pm.LANE_OFFSET),
             (u.URBAN_PLAN,),
             0.05,
             0.045,
@@ -410,7 +478,7 @@ KINDS: dict[str, ModuleKind] = {
         ),
         ModuleKind(
             "urban_control",
-            (u.URBAN_PLAN, u.URBAN_POSE, m.MISSION, SAFETY_LIMIT),
+            (u.URBAN_PLAN, u.URBAN_POSE, m.MISSION, SAFETY_LIMIT, pm.LANE_OFFSET),
             (m.CONTROL,),
             0.02,
             0.010,
@@ -448,6 +516,10 @@ IMPLEMENTATIONS: dict[str, tuple[str, ...]] = {
     "world_model": ("bywire.host.modules.estimation.world_model", "bywire.host.world.radar_fusion"),
     "platoon_control": ("bywire.host.modules.control.platoon",),
     "urban_io": ("bywire.host.modules.io.object_link",),
+    "urban_pose": ("bywire.host.modules.io.object_link",),
+    "lidar_io": ("bywire.host.modules.io.lidar_link",),
+    "lidar_perception": ("bywire.host.modules.estimation.lidar_perception",),
+    "lane_offset": ("bywire.host.modules.estimation.lane_offset",),
     "urban_behaviour": (
         "bywire.host.modules.planning.urban_behaviour",
         "bywire.host.behaviour.behaviour",

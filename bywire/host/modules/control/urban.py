@@ -4,14 +4,15 @@ longitudinal override strategy of section 11.2 on the behaviour's plan, out to t
 `urban_control` tracks the plan's stub with `lateral_step` (eqs. 18-23, the steering angle goes to the
 ECU with the STEER flag) and `longitudinal_step` (following / stopping with hysteresis / velocity,
 max/min combination, saturation), the stop distance taken along the stub from the rear axle's projection
-at *this* release. A backward leg (the stub's direction -1: leaving a parking spot, the K-turn's
-backward half) sets `RequestFlags.REVERSE`: the acceleration request stays along the direction of travel
-(positive: faster backwards), the ECU shifts at standstill (brakes, holds, waits for the gateway) and
-caps the reverse speed (ecu/gear.py). The pose's speed is signed (negative backwards), so extrapolation
-runs the right way; the longitudinal controller sees its magnitude. `reverse_held` (backward legs held at
-standstill: there is no such case any more, it stays 0) remains in the summary for the JSON contract.
-
-Pure: it replays exactly (`bywire log replay --check`).
+at *this* release; our pose is put on the map with the map's offset from the lane markings when the
+LIDAR's lane-offset module has a valid one (`/urban/lane_offset`, seed 000 Sec. 6). A backward leg (the
+stub's direction -1: leaving a parking spot, the K-turn's backward half) sets `RequestFlags.REVERSE`: the
+acceleration request stays along the direction of travel (positive: faster backwards), the ECU shifts at
+standstill (brakes, holds, waits for the gateway) and caps the reverse speed (ecu/gear.py). The pose's
+speed is signed (negative backwards), so extrapolation runs the right way; the longitudinal controller
+sees its magnitude. `reverse_held` (backward legs held at standstill: there is no such case any more, it
+stays 0) remains in the summary for the JSON contract. Pure: it replays exactly (`bywire log replay
+--check`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ from bywire.host.modules.messages import (
     ControlRequest,
     MissionCommand,
 )
-from bywire.host.modules.planning.urban_behaviour import extrapolate
+from bywire.host.modules.perception_messages import LANE_OFFSET, LaneOffsetEstimate
+from bywire.host.modules.planning.urban_behaviour import extrapolate, on_map
 from bywire.host.modules.urban_log import UrbanLog
 from bywire.host.modules.urban_messages import (
     URBAN_PLAN,
@@ -102,6 +104,9 @@ class UrbanControl(Module):
         pose: UrbanPose | None = ctx.latest(URBAN_POSE)
         mission: MissionCommand | None = ctx.latest(MISSION)
         limit: SafetyLimit | None = ctx.latest(SAFETY_LIMIT)
+        offset: LaneOffsetEstimate | None = ctx.latest(LANE_OFFSET)
+        if pose is not None and offset is not None and offset.valid:
+            pose = on_map(pose, offset)
         speed = abs(pose.speed_mps) if pose is not None and pose.valid else 0.0
         accel, controller, v_des, gap = HOLD_DECEL_MPS2, "none", 0.0, math.nan
         reverse = self._reverse
@@ -113,6 +118,8 @@ class UrbanControl(Module):
             and pose.valid
             and now - pose.t_s <= POSE_STALE_S
         )
+        applied = offset.offset_m if offset is not None and offset.valid else 0.0
+        self.log.lane_offset(now, applied, offset is not None and offset.valid)
         path = self._samples(plan) if usable and plan is not None else None
         if usable and plan is not None and pose is not None and path is not None:
             x, y, h = extrapolate(pose, now - pose.t_s)

@@ -1,6 +1,7 @@
 """The localisation's object link as a module of the urban host: our pose and the object list
 (`protocol.objects`) in, `/urban/pose` and `/urban/objects` out at 100 Hz; a datagram that is not an
-object list is counted and dropped.
+object list is counted and dropped. As `urban_pose` (a host that perceives with its LIDAR) it publishes
+the pose alone: the objects are the perception's.
 """
 
 from __future__ import annotations
@@ -25,8 +26,9 @@ MAX_DATAGRAMS = 400  # per release: a flood waits in the socket, it does not sta
 class UrbanIo(Module):
     """Reads the object link (protocol/objects.py) and publishes the newest pose and object list."""
 
-    def __init__(self, link: Any, log: UrbanLog | None = None) -> None:
+    def __init__(self, link: Any, log: UrbanLog | None = None, objects: bool = True) -> None:
         self.link = link
+        self.publish_objects = objects
         self.log = log or UrbanLog()
         self.pose: UrbanPose | None = None
         self.objects: UrbanObjects | None = None
@@ -63,5 +65,7 @@ class UrbanIo(Module):
             pose = UrbanPose(now, True, last.stamp_s, last.x_m, last.y_m, last.heading_rad, last.speed_mps,
                              last.yaw_rate_radps, self.received, self.rejected)  # fmt: skip
         ctx.publish(URBAN_POSE, pose)
+        if not self.publish_objects:
+            return
         objs_msg = self.objects or UrbanObjects(now, False, math.nan, ())
         ctx.publish(URBAN_OBJECTS, UrbanObjects(now, objs_msg.valid, objs_msg.stamp_s, objs_msg.objects))

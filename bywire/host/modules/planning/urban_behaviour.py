@@ -1,6 +1,8 @@
 """The behaviour of seed 000 sections 8-9 as a module of the urban host: `host.behaviour.Behaviour.step` on a
 `Situation` made of the newest pose (the rear axle, extrapolated to the release with its speed and yaw
-rate), the objects (matched to lanes by the behaviour's own `LaneIndex`) and the E-stop as the ECU
+rate), the objects (matched to lanes by the behaviour's own `LaneIndex`; a standing box the way round
+that fits its lane), both put on the map by its offset from the lane markings when the LIDAR's
+`lane_offset` module has one (seed 000 Sec. 6), and the E-stop as the ECU
 reports it: ENGAGED is RUN, DISABLED is DISABLE, anything else PAUSE (before the ECU engages, and while
 it stops for a fault, the behaviour's clock stands still: nothing times out). Its planner is built from
 the mission's RNDF/MDF once per host (`HostResources.urban_network`, ~1.5 s on the DARPA sample network;
@@ -19,6 +21,7 @@ from bywire.host.modules.messages import (
     ECU_STATUS,
     EcuStatusReport,
 )
+from bywire.host.modules.perception_messages import LANE_OFFSET, LaneOffsetEstimate
 from bywire.host.modules.urban_log import UrbanLog
 from bywire.host.modules.urban_messages import (
     URBAN_OBJECTS,
@@ -31,6 +34,8 @@ from bywire.host.modules.urban_messages import (
 )
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.protocol.ecu_types import EcuState
+
+STANDING_MPS = 0.5  # slower: the LIDAR's tracker calls a track static and knows no front
 
 
 def estop_of(status: EcuStatusReport | None) -> EStop:
@@ -56,6 +61,25 @@ def extrapolate(pose: UrbanPose, dt_s: float) -> tuple[float, float, float]:
     return pose.x_m + rad * (math.sin(h1) - math.sin(h)), pose.y_m - rad * (math.cos(h1) - math.cos(h)), h1
 
 
+def _score(obj: TrackedObject) -> float:
+    """How far an object stands from its lane's centre line (lower: fits better)."""
+    assert obj.lane is not None
+    return abs(obj.lane.lateral_m)
+
+
+def on_map(pose: UrbanPose, offset: LaneOffsetEstimate) -> UrbanPose:
+    """Our pose moved onto the map by its offset from the lane markings (perception.lane_offset)."""
+    dx, dy = offset.correction()
+    return replace(pose, x_m=pose.x_m - dx, y_m=pose.y_m - dy)
+
+
+def objects_on_map(objs: UrbanObjects, offset: LaneOffsetEstimate) -> UrbanObjects:
+    """The objects, seen from our position fix, moved onto the map with it."""
+    dx, dy = offset.correction()
+    moved = tuple(replace(o, x_m=o.x_m - dx, y_m=o.y_m - dy) for o in objs.objects)
+    return replace(objs, objects=moved)
+
+
 class UrbanBehaviour(Module):
     """`Behaviour.step` on the store's pose and objects (see the module docstring)."""
 
@@ -74,6 +98,13 @@ class UrbanBehaviour(Module):
         if hit is not None and hit[0] == key:
             return replace(hit[1], speed_mps=o.speed_mps, length_m=o.length_m, width_m=o.width_m)
         matched = match_objects(self.behaviour.ctx.lane_index, (obj,))[0]
+        if o.speed_mps < STANDING_MPS:
+            # A box seen standing has an orientation but no front (the LIDAR's tracks): it stands the
+            # way round that fits a lane better.
+            turned = replace(obj, heading_rad=math.remainder(o.heading_rad + math.pi, 2.0 * math.pi))
+            flipped = match_objects(self.behaviour.ctx.lane_index, (turned,))[0]
+            if flipped.lane is not None and (matched.lane is None or _score(flipped) < _score(matched)):
+                matched = flipped
         self._matches[o.object_id] = (key, matched)
         return matched
 
@@ -82,6 +113,12 @@ class UrbanBehaviour(Module):
         pose: UrbanPose | None = ctx.latest(URBAN_POSE)
         objs: UrbanObjects | None = ctx.latest(URBAN_OBJECTS)
         status: EcuStatusReport | None = ctx.latest(ECU_STATUS)
+        offset: LaneOffsetEstimate | None = ctx.latest(LANE_OFFSET)
+        if objs is not None and objs.valid:
+            self.log.perceive(objs.stamp_s, tuple((o.object_id, o.x_m, o.y_m) for o in objs.objects))
+        if offset is not None and offset.valid:
+            pose = on_map(pose, offset) if pose is not None else None
+            objs = objects_on_map(objs, offset) if objs is not None else None
         if pose is None or not pose.valid:
             ctx.publish(URBAN_PLAN, _hold_plan(now, "no pose yet"))
             return
