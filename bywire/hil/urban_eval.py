@@ -18,6 +18,9 @@ judged against the DARPA Urban Challenge rules the behaviour claims to follow.
   10 Hz from 2 s after engaging, while the behaviour drives a lane or an intersection: not in a lane
   change, passing, K-turn, zone, recovery or replan, nor 5 s after one (those legs leave the lane on
   purpose).
+- `perception` (`perfect` | `lidar`), `perception_tracks`, `perception_false_objects`,
+  `perception_missed_objects`, `lane_offset_error_m`: what the host perceived, against the truth
+  (`hil.perception_eval`); `lidar_revolutions`, `lidar_dropped` what the simulated sensor sent.
 - `time_s`: when the last checkpoint reached was reached (the mission's time when `mission_complete`).
 - `hsm_state_at_fault`: the behaviour's state at `fault_ref_s` (the first fault's instant).
 - `behaviour_faults`, `reverse_held`: internal errors the behaviour caught; control cycles a backward
@@ -33,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from bywire.hil.perception_eval import perception_metrics
 from bywire.hil.scenario import Scenario
 from bywire.protocol.ecu_types import EcuState
 
@@ -143,6 +147,12 @@ def evaluate_urban(
     m["behaviour_faults"] = len(host.get("faults", []))
     m["reverse_held"] = int(host.get("reverse_held", 0))
     m["behaviour_checkpoints"] = list(host.get("behaviour_checkpoints", []))
+    m["perception"] = spec.perception
+    m.update(perception_metrics(urban, host, spec.pose.map_offset_m, t0_host_s))
+    lidar = urban.get("lidar")
+    if lidar:
+        m["lidar_revolutions"] = lidar["revolutions"]
+        m["lidar_dropped"] = lidar["dropped"]
     details = {
         "state_history": states,
         "urban": {

@@ -1,0 +1,139 @@
+"""The urban host on its own perception (seed 000 sections 4-6) in SIL: the plant casts the simulated
+Velodyne's revolutions, the host's grid, segmentation and tracker make the object list the behaviour
+drives on, and the lane markings put the car on a map that is off by 1.5 m.
+
+Every shipped urban scenario with LIDAR perception is the `-m slow` campaign (`test_every_urban_scenario_
+passes_on_lidar`, about 40 s of CPU each); the default run has a four-way stop with waiting cars, the
+parked car, and `rndf_offset` both ways."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from bywire.hil.evaluate import evaluate
+from bywire.hil.perception_eval import perception_metrics
+from bywire.hil.scenario import ScenarioError, load_scenario, parse_scenario, with_perception
+from bywire.hil.sil import run_sil
+
+URBAN = (
+    "four_way_stop_0",
+    "four_way_stop_1",
+    "four_way_stop_2",
+    "four_way_stop_3",
+    "four_way_stop_stuck_car",
+    "left_turn_oncoming",
+    "merge_moving_traffic",
+    "lane_change",
+    "pass_parked_car",
+    "blocked_road_replan",
+    "estop_in_intersection",
+    "host_freeze_in_turn",
+    "rndf_offset",
+)
+CONTRACT = (
+    "perception_tracks",
+    "perception_false_objects",
+    "perception_missed_objects",
+    "lane_offset_error_m",
+)
+
+
+def run(name: str, perception: str) -> dict[str, Any]:
+    scenario = with_perception(load_scenario(name), perception)
+    result = run_sil(scenario)
+    doc = evaluate(scenario, result.plant, result.host, result.extra, "sil", result.traffic)
+    doc["_extra"] = result.extra
+    return doc
+
+
+def failed(doc: dict[str, Any]) -> list[dict[str, Any]]:
+    return [c for c in doc["checks"] if not c["passed"]]
+
+
+def test_the_perception_mode_chooses_the_world_and_the_host_configuration() -> None:
+    scenario = load_scenario("four_way_stop_1")
+    assert scenario.urban is not None and scenario.urban.perception == "perfect"
+    assert scenario.host_config == "urban"
+    lidar = with_perception(scenario, "lidar")
+    assert lidar.urban is not None and lidar.urban.perception == "lidar"
+    assert lidar.host_config == "urban_lidar"
+    assert with_perception(lidar, "perfect").host_config == "urban"
+    offset = load_scenario("rndf_offset")
+    assert offset.urban is not None and offset.urban.perception == "lidar"
+    assert offset.urban.pose.map_offset_m == (0.0, 1.5)
+
+
+def test_a_perception_key_without_an_urban_world_is_refused_where_it_is() -> None:
+    with pytest.raises(ScenarioError, match="perception"):
+        parse_scenario({"name": "x", "duration_s": 1, "perception": "lidar"}, "x.yaml")
+    with pytest.raises(ScenarioError, match="perception"):
+        parse_scenario({"name": "x", "duration_s": 1, "perception": "radar"}, "x.yaml")
+
+
+def test_perception_metrics_count_false_and_missed_objects_against_the_truth() -> None:
+    urban = {"tracks": {"ego": [[1.0, 0.0, 0.0]], "a": [[1.0, 10.0, 0.0]], "far": [[1.0, 100.0, 0.0]]}}
+    # seen in the host's frame, the map 1 m north of the road: `a` seen where it is, one ghost
+    host = {"perceived": [[1.0, [["t1", 10.3, 1.0], ["t2", 0.0, -7.0]]]], "lane_offsets": []}
+    m = perception_metrics(urban, host, (0.0, 1.0))
+    assert m["perception_false_objects"] == 1.0
+    assert m["perception_missed_objects"] == 0.0  # `far` is beyond the range the behaviour needs
+    assert m["perception_tracks"] == 2
+    host["perceived"] = [[1.0, []]]
+    assert perception_metrics(urban, host, (0.0, 0.0))["perception_missed_objects"] == 1.0
+
+
+def test_lane_offset_error_is_what_was_applied_against_the_maps_true_offset() -> None:
+    ego = [[t, 10.0 * t, 0.0] for t in (0.0, 0.5, 1.0, 1.5)]  # east at 20 m/s
+    urban = {"tracks": {"ego": ego}}
+    right = {"perceived": [], "lane_offsets": [[t, 1.5, True] for t, _, _ in ego]}
+    none = {"perceived": [], "lane_offsets": [[t, 0.0, False] for t, _, _ in ego]}
+    assert perception_metrics(urban, right, (0.0, 1.5))["lane_offset_error_m"] == 0.0
+    assert math.isclose(perception_metrics(urban, none, (0.0, 1.5))["lane_offset_error_m"], 1.5)
+
+
+@pytest.fixture(scope="module")
+def four_way_stop() -> dict[str, Any]:
+    return run("four_way_stop_2", "lidar")
+
+
+def test_a_four_way_stop_with_waiting_cars_passes_on_what_the_lidar_sees(
+    four_way_stop: dict[str, Any],
+) -> None:
+    doc = four_way_stop
+    assert doc["verdict"] == "pass", failed(doc)
+    m = doc["metrics"]
+    assert m["perception"] == "lidar"
+    for key in CONTRACT:
+        assert key in m
+    # the host drove on its own tracks, not the simulator's list: its ids are the tracker's
+    perceived = doc["_extra"]["urban_host"]["perceived"]
+    ids = {o[0] for _, objs in perceived for o in objs}
+    assert ids and all(i.startswith("t") for i in ids)
+    assert m["perception_missed_objects"] < 0.2
+    assert m["lidar_revolutions"] >= 10 * load_scenario("four_way_stop_2").duration_s - 1
+
+
+def test_the_parked_car_is_passed_on_what_the_lidar_sees() -> None:
+    doc = run("pass_parked_car", "lidar")
+    assert doc["verdict"] == "pass", failed(doc)
+
+
+def test_rndf_offset_passes_with_the_lane_markings_and_fails_on_the_map_alone() -> None:
+    lidar = run("rndf_offset", "lidar")
+    assert lidar["verdict"] == "pass", failed(lidar)
+    assert lidar["metrics"]["lane_offset_error_m"] <= 0.3
+    perfect = run("rndf_offset", "perfect")
+    assert perfect["verdict"] == "fail"
+    names = {c["name"] for c in failed(perfect)}
+    assert "in the real lane (RMS)" in names and "the map's offset found" in names
+    assert perfect["metrics"]["lateral_error_rms_m"] > 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", URBAN)
+def test_every_urban_scenario_passes_on_lidar(name: str) -> None:
+    doc = run(name, "lidar")
+    assert doc["verdict"] == "pass", failed(doc)
