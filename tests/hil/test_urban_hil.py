@@ -50,6 +50,35 @@ def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
     assert east["departure_s"] < ours["departure_s"]
 
 
+@pytest.mark.slow  # passed 2 of 3 runs here: see docs/perception.md "The loop closed"
+def test_four_way_stop_on_lidar_in_three_processes(tmp_path: Path) -> None:
+    """The plant casts the Velodyne on a worker thread and sends each revolution over the scan link; the
+    host's perception runs in a worker process of its own; the behaviour waits for the car it sees."""
+    doc = four_way_stop_hil()
+    doc["name"] = "four_way_stop_lidar_hil"
+    doc["perception"] = "lidar"
+    result = _run_hil(doc, tmp_path)
+    m = result["metrics"]
+    assert m["perception"] == "lidar" and m["lidar_revolutions"] > 0
+    assert m["checkpoints_reached_list"] == [1, 2] and m["precedence_violations"] == 0
+    assert m["collisions"] == 0 and m["final_state"] == "ENGAGED"
+    east = next(a for a in result["urban"]["arrivals"] if a["vehicle"] == "east")
+    ours = next(a for a in result["urban"]["arrivals"] if a["vehicle"] == "ego")
+    assert east["departure_s"] < ours["departure_s"]
+    assert m["perception_missed_objects"] < 0.2
+
+
+@pytest.mark.slow
+def test_darpa_sample_mission_first_90_s_on_lidar_in_three_processes(tmp_path: Path) -> None:
+    doc = _sample_mission("darpa_sample_mission_lidar_hil")
+    doc["duration_s"] = 90.0
+    doc["perception"] = "lidar"
+    doc["checks"] = [c for c in doc["checks"] if c["metric"] not in ("checkpoints_reached", "time_s")]
+    doc["checks"].append({"name": "first checkpoints", "metric": "checkpoints_reached", "min": 2})
+    result = _run_hil(doc, tmp_path)
+    assert result["verdict"] == "pass", [c for c in result["checks"] if not c["passed"]]
+
+
 @pytest.mark.slow  # 90 s of driving; the default run's urban HIL test is the four-way stop
 def test_darpa_sample_mission_first_90_s_in_three_processes(tmp_path: Path) -> None:
     doc = _sample_mission("darpa_sample_mission_hil")

@@ -116,6 +116,7 @@ def test_a_four_way_stop_with_waiting_cars_passes_on_what_the_lidar_sees(
     assert m["lidar_revolutions"] >= 10 * load_scenario("four_way_stop_2").duration_s - 1
 
 
+@pytest.mark.slow  # the default run's LIDAR scenarios are the four-way stop and rndf_offset
 def test_the_parked_car_is_passed_on_what_the_lidar_sees() -> None:
     doc = run("pass_parked_car", "lidar")
     assert doc["verdict"] == "pass", failed(doc)
