@@ -262,27 +262,38 @@ class IntersectionManager:
         self._last_t = t_s
         info = self.event.info
         waiting: list[WaitingVehicle] = []
-        box: list[str] = []
-        seen: set[tuple[str, str]] = set()
         positions: list[tuple[TrackedObject, _LanePosition]] = []
         cx, cy = (
             info.hull_xy.mean(axis=0) if info.hull_xy.shape[0] else self.graph.vertex_xy(self.event.approach)
         )
         moving = False
-        for obj in objects:
-            line = self._at_line(obj)
+        at_line = [(obj, self._at_line(obj)) for obj in objects]
+        seen = {(obj.object_id, line) for obj, line in at_line if line is not None}
+        box = [obj.object_id for obj in objects if info.in_box(obj.x_m, obj.y_m)]
+        # tracks that left their line this cycle other than into the box: lost there (before new tracks
+        # at that line are given their arrival, which may be the lost one's)
+        for (oid, line), arrived in self._first_seen.items():
+            if (oid, line) not in seen and oid not in box:
+                self._lost_at_line[line] = (arrived, t_s, oid)
+        for obj, line in at_line:
             if line is not None:
                 key = (obj.object_id, line)
-                seen.add(key)
                 if key not in self._first_seen:
                     lost = self._lost_at_line.pop(line, None)
                     # a new track where one was lost a moment ago: the same car, seen again
                     if lost is not None and t_s - lost[1] <= REACQUIRE_S:
                         self._first_seen[key] = lost[0]
-                arrived = self._first_seen.setdefault(key, t_s)
-                waiting.append(WaitingVehicle(obj.object_id, line, arrived))
-            if info.in_box(obj.x_m, obj.y_m):
-                box.append(obj.object_id)
+                self._first_seen.setdefault(key, t_s)
+        # One car waits at a line's front: two tracks there are one car's fragments (a car half hidden
+        # is segmented in two) or a car that replaced one lost there; the line's earliest arrival stands.
+        first_at: dict[str, float] = {}
+        for (oid, line), arrived in self._first_seen.items():
+            if (oid, line) in seen:
+                first_at[line] = min(arrived, first_at.get(line, arrived))
+        for obj, line in at_line:
+            if line is not None:
+                self._first_seen[(obj.object_id, line)] = first_at[line]
+                waiting.append(WaitingVehicle(obj.object_id, line, first_at[line]))
             pos = self._lane_position(obj)
             if pos is not None:
                 positions.append((obj, pos))
@@ -291,16 +302,23 @@ class IntersectionManager:
                 and math.hypot(obj.x_m - cx, obj.y_m - cy) < rules.TRAFFIC_NEAR_M
             ):
                 moving = True
-        for (oid, line), arrived in self._first_seen.items():
-            if (oid, line) not in seen and oid not in box:
-                self._lost_at_line[line] = (arrived, t_s, oid)
         self._first_seen = {k: v for k, v in self._first_seen.items() if k in seen}
         # A waiting car whose track was lost still waits until REACQUIRE_S has passed: hidden is not gone.
         taken = {line for _, line in seen}
         self._lost_at_line = {k: v for k, v in self._lost_at_line.items() if t_s - v[1] <= REACQUIRE_S}
         for line, (arrived, _, oid) in self._lost_at_line.items():
-            if line not in taken and oid not in box:
+            if oid in box:
+                continue
+            if line not in taken:
                 waiting.append(WaitingVehicle(oid, line, arrived))
+            elif arrived < first_at[line]:
+                # lost while another track at its line, arrived later, went on: that one is this car
+                for key in [k for k in self._first_seen if k[1] == line]:
+                    self._first_seen[key] = arrived
+                waiting = [
+                    WaitingVehicle(w.vehicle_id, w.stop_line_id, arrived) if w.stop_line_id == line else w
+                    for w in waiting
+                ]
         self.waiting = tuple(waiting)
         self.in_box = tuple(box)
         self._positions = positions

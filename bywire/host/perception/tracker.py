@@ -34,6 +34,9 @@ Confidence (section 5): a track's confidence rises by `hit_gain` when it is obse
 `publish_hits` hits and a confidence of at least `publish_confidence`; it is deleted when the
 confidence falls below `delete_confidence` or after `max_misses` consecutive misses. Tracks between
 the thresholds are kept but not published, so a false detection seen for one scan is never published.
+A standing track that has been seen `standing_hits` times loses `standing_miss_loss` per miss and may
+miss `standing_max_misses` scans (both default to the moving ones'): a car waiting at a stop line that
+another car hides for a second or two is hidden, not gone (section 9.3's queue depends on it).
 Only detections scoring at least `birth_min_score` start a track ("only 'good' candidates are
 augmented in the following tracking step"); any detection may continue one.
 
@@ -109,6 +112,11 @@ class TrackerParams:
     delete_confidence: float = 0.0
     # 0.5 s at 10 Hz: a car hidden behind another for a few scans keeps its id.
     max_misses: int = 5
+    # A standing track seen this often coasts longer through misses (see the module docstring); None:
+    # as a moving one.
+    standing_hits: int = 10
+    standing_miss_loss: float | None = None
+    standing_max_misses: int | None = None
     # Box smoothing: weight of a new detection's length, width and yaw.
     box_gain: float = 0.5
     # 1.5 m/s (5.4 km/h): slower, a car is creeping or standing. A static track's velocity noise
@@ -316,11 +324,17 @@ class Tracker:
         self._hits[hit] += 1
         self._misses[hit] = 0
         self._misses[~hit] += 1
-        self._confidence = np.where(
-            hit, np.minimum(self._confidence + p.hit_gain, p.confidence_max), self._confidence - p.miss_loss
+        standing = ~self._moving & (self._hits >= p.standing_hits)
+        loss = np.where(
+            standing, p.miss_loss if p.standing_miss_loss is None else p.standing_miss_loss, p.miss_loss
         )
-
-        keep = (self._confidence >= p.delete_confidence) & (self._misses < p.max_misses)
+        self._confidence = np.where(
+            hit, np.minimum(self._confidence + p.hit_gain, p.confidence_max), self._confidence - loss
+        )
+        max_misses = np.where(
+            standing, p.max_misses if p.standing_max_misses is None else p.standing_max_misses, p.max_misses
+        )
+        keep = (self._confidence >= p.delete_confidence) & (self._misses < max_misses)
         self._select(keep)
         taken = taken[keep]
 

@@ -345,3 +345,50 @@ def test_coarse_then_fine_conflict_search_equals_the_brute_force_one() -> None:
         brute = _first_close(own, other, rules.CONFLICT_DISTANCE_M)
         fast = _first_conflict(own, other, rules.CONFLICT_DISTANCE_M)
         assert fast == brute
+
+
+def _waiting_at(manager, line_id: str, object_id: str, speed_mps: float = 0.0, back_m: float = 0.3):  # type: ignore[no-untyped-def]
+    """A car of 4.5 m with its front bumper `back_m` before stop line `line_id`."""
+    (lx, ly), h = manager._line_pose[line_id]
+    d = back_m + 2.25
+    return TrackedObject(object_id, lx - d * math.cos(h), ly - d * math.sin(h), h, speed_mps, 4.5, 1.8)
+
+
+def test_a_waiting_car_hidden_then_found_under_a_new_id_keeps_its_arrival() -> None:
+    """A LIDAR tracker loses a car waiting at its line while another crosses between us, and finds it
+    again under a new id, often as it starts: the same car, still first in the queue."""
+    from bywire.host.behaviour.intersection_manager import REACQUIRE_S, IntersectionManager
+
+    net = cross_network([1, 2], stops="all")
+    b = Behaviour(net.planner, lane_index=net.lane_index)
+    ev = b.route_view.intersections[0]
+    m = IntersectionManager(net.graph, b.route_view, ev, None)
+    other = next(line for line in m._line_pose if line != str(ev.approach))
+    m.update(0.0, (_waiting_at(m, other, "a"),))
+    assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("a", 0.0)]
+    m.update(1.0, ())  # hidden: still waits there
+    assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("a", 0.0)]
+    m.update(1.5, (_waiting_at(m, other, "b", speed_mps=1.5),))  # found again, already starting
+    assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("b", 0.0)]
+    # gone for longer than REACQUIRE_S: gone, and a car that comes later arrives when it comes
+    m.update(2.0, ())
+    m.update(2.0 + REACQUIRE_S + 0.1, ())
+    assert m.waiting == ()
+    m.update(6.0, (_waiting_at(m, other, "c"),))
+    assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("c", 6.0)]
+
+
+def test_two_tracks_at_one_line_share_its_earliest_arrival() -> None:
+    """A car half hidden is segmented in two: the fragment that stays keeps the car's place in the queue."""
+    from bywire.host.behaviour.intersection_manager import IntersectionManager
+
+    net = cross_network([1, 2], stops="all")
+    b = Behaviour(net.planner, lane_index=net.lane_index)
+    ev = b.route_view.intersections[0]
+    m = IntersectionManager(net.graph, b.route_view, ev, None)
+    other = next(line for line in m._line_pose if line != str(ev.approach))
+    m.update(0.0, (_waiting_at(m, other, "a"),))
+    m.update(5.0, (_waiting_at(m, other, "a"), _waiting_at(m, other, "b", back_m=1.0)))
+    assert sorted((w.vehicle_id, w.arrived_s) for w in m.waiting) == [("a", 0.0), ("b", 0.0)]
+    m.update(5.5, (_waiting_at(m, other, "b", back_m=1.0),))
+    assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("b", 0.0)]

@@ -268,3 +268,35 @@ def test_tracks_are_unique_and_take_distinct_detections(scans):
         taken = [t.detection for t in published if t.detection >= 0]
         assert len(set(ids)) == len(ids)
         assert len(set(taken)) == len(taken) and all(0 <= i < len(scan) for i in taken)
+
+
+def test_a_standing_car_hidden_for_two_seconds_keeps_its_track_when_told_to():
+    """A car waiting at a stop line, hidden while another crosses between us: with the standing
+    parameters it stays published (and keeps its id); with the defaults it is deleted after max_misses."""
+
+    def hide(params: TrackerParams) -> tuple[list, set[int]]:
+        tracker = Tracker(params)
+        ids: set[int] = set()
+        published = []
+        for k in range(60):
+            seen = [] if 20 <= k < 40 else [Detection(5.0, 2.0)]
+            published = tracker.update(seen, k * DT_S)
+            ids |= {t.id for t in published}
+            if k == 39:
+                hidden = published
+        return hidden, ids
+
+    hidden, ids = hide(TrackerParams(standing_miss_loss=0.1, standing_max_misses=30))
+    assert len(hidden) == 1 and hidden[0].misses == 20 and not hidden[0].moving
+    assert len(ids) == 1
+    hidden, ids = hide(TrackerParams())
+    assert hidden == [] and len(ids) == 2
+
+
+def test_a_moving_car_does_not_coast_like_a_standing_one():
+    tracker = Tracker(TrackerParams(standing_miss_loss=0.1, standing_max_misses=30, max_misses=4))
+    xy = straight(10.0, 0.0, 8.0, 0.0, 30)
+    run(tracker, [[Detection(*q)] for q in xy])
+    for k in range(4):
+        tracker.update([], (30 + k) * DT_S)
+    assert len(tracker) == 0

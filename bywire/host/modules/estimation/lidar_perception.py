@@ -70,7 +70,8 @@ class LidarPerception(Module):
             min_cells=int(params.get("min_cells", 3)),
         )
         self.shape = ParticipantShape()
-        self.tracker = Tracker(TrackerParams())
+        # A car waiting at a stop line, hidden by one crossing between us: 3 s before it is given up.
+        self.tracker = Tracker(TrackerParams(standing_miss_loss=0.1, standing_max_misses=30))
         self._stamp_s = math.nan
         self._headings: dict[int, float] = {}
         self._objects: UrbanObjects | None = None
