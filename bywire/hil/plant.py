@@ -84,10 +84,11 @@ class PlantLinks:
     unix_time: Callable[[float], float] | None = None  # scenario time -> UNIX s (V2V generation stamps)
     replay_profile: Sequence[tuple[float, float]] = field(default_factory=tuple)
     objects_send: Callable[[bytes], Any] | None = None  # the urban world's object-list datagrams
-    # The urban world's LIDAR revolutions (`perception: lidar`), and whether they are cast off the
-    # plant's loop (HIL: a cast takes longer than a step) or in it (SIL: deterministic).
+    # The urban world's LIDAR revolutions (`perception: lidar`): cast in the plant's step and sent with
+    # `scans_send` (SIL: deterministic), or by a sensor process started before the run, `lidar` (HIL: a
+    # cast takes longer than a step; hil.lidar.sensor_link.LidarProcess).
     scans_send: Callable[[bytes], Any] | None = None
-    lidar_threaded: bool = False
+    lidar: Any = None
 
 
 @dataclass
@@ -132,15 +133,13 @@ class Plant:
         self.urban: UrbanWorldSim | None = None
         if scenario.urban is not None:
             self.urban = UrbanWorldSim(scenario.urban, scenario.seed, self.links.objects_send)
-            if scenario.urban.perception == "lidar" and self.links.scans_send is not None:
+            if scenario.urban.perception == "lidar" and self.links.lidar is not None:
+                self.urban.lidar = self.links.lidar
+            elif scenario.urban.perception == "lidar" and self.links.scans_send is not None:
                 from bywire.hil.lidar.sensor_link import LidarSender
 
                 self.urban.lidar = LidarSender(
-                    self.urban.world,
-                    scenario.urban.lidar,
-                    self.links.scans_send,
-                    scenario.seed,
-                    threaded=self.links.lidar_threaded,
+                    self.urban.world, scenario.urban.lidar, self.links.scans_send, scenario.seed
                 )
         self._world_t_s = -1.0
         self._applied = _Actuation()

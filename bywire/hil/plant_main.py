@@ -92,7 +92,7 @@ def main(args: argparse.Namespace) -> int:
     )
     v2x: Any = None
     objects: Any = None
-    scans: Any = None
+    lidar: Any = None
     gps: FdWriter | None = None
     profile: tuple[tuple[float, float], ...] = ()
     if args.leader_profile is not None:
@@ -115,10 +115,6 @@ def main(args: argparse.Namespace) -> int:
             from bywire.protocol.objects import open_object_link
 
             objects = open_object_link(args.objects, receiver=False)
-        if args.scans:
-            from bywire.protocol.lidar.scan_link import open_scan_link
-
-            scans = open_scan_link(args.scans, receiver=False)
         if scenario.world is not None:
             # The V2V senders' ASN.1 compile (~0.1-0.2 s of pyparsing) here, not in the first step:
             # seen in HIL, it held the plant's loop for 109 ms and the ECU stopped the car.
@@ -127,6 +123,11 @@ def main(args: argparse.Namespace) -> int:
             compiled_spec()
         # Collect the set-up's garbage now and keep what lives from the collector's passes: pyparsing's
         # finalizers, collected inside a step, held the loop for 85 ms in a loaded HIL run.
+        if args.scans and scenario.urban is not None and scenario.urban.perception == "lidar":
+            from bywire.hil.lidar.sensor_link import LidarProcess
+
+            # the sensor's process and its scene (~1 s) before the run, not in its first steps
+            lidar = LidarProcess(scenario.urban, scenario.seed, args.scans)
         gc.collect()
         gc.freeze()
         t0 = wait_for_t0(args.t0)
@@ -138,8 +139,7 @@ def main(args: argparse.Namespace) -> int:
             unix_time=lambda t: t0_unix + t,
             replay_profile=profile,
             objects_send=objects.send if objects is not None else None,
-            scans_send=scans.send if scans is not None else None,
-            lidar_threaded=True,
+            lidar=lidar,
         )
         plant = Plant(scenario, vehicle, bus, t0_s=t0, trace=trace, links=links)
         stats = CycleStats()
@@ -171,11 +171,10 @@ def main(args: argparse.Namespace) -> int:
             args.world_summary.write_text(json.dumps(plant.world.summary(), indent=1), encoding="utf-8")
         if plant is not None and plant.urban is not None and args.urban_summary is not None:
             args.urban_summary.write_text(json.dumps(plant.urban.summary(), default=str), encoding="utf-8")
-        if plant is not None and plant.urban is not None and plant.urban.lidar is not None:
-            plant.urban.lidar.close()
-        for lk in (objects, scans):
-            if lk is not None:
-                lk.close()
+        if lidar is not None:
+            lidar.close()
+        if objects is not None:
+            objects.close()
         if v2x is not None:
             v2x.close()
         if gps is not None:

@@ -1,7 +1,8 @@
 """Urban driving scenarios (seed 000) in the three-process HIL, through `bywire hil run --mode hil` as a user
 runs it: bus servers, ECU, plant (with the urban world, its object list on loopback UDP) and host (the `urban`
-configuration) as separate processes. A four-way stop with a car waiting, the host frozen mid-turn (SIGSTOP),
-the DARPA sample mission's first 90 s and the whole mission; behaviour is judged, never timing."""
+configuration) as separate processes. A four-way stop with a car waiting (also on LIDAR: the plant's sensor
+process casts, the host's perception process tracks), the host frozen mid-turn (SIGSTOP), the DARPA sample
+mission's first 90 s (also on LIDAR) and the whole mission; behaviour is judged, never timing."""
 
 from __future__ import annotations
 
@@ -50,9 +51,8 @@ def test_four_way_stop_in_three_processes(tmp_path: Path) -> None:
     assert east["departure_s"] < ours["departure_s"]
 
 
-@pytest.mark.slow  # passed 2 of 3 runs here: see docs/perception.md "The loop closed"
 def test_four_way_stop_on_lidar_in_three_processes(tmp_path: Path) -> None:
-    """The plant casts the Velodyne on a worker thread and sends each revolution over the scan link; the
+    """The plant's sensor process casts the Velodyne and sends each revolution over the scan link; the
     host's perception runs in a worker process of its own; the behaviour waits for the car it sees."""
     doc = four_way_stop_hil()
     doc["name"] = "four_way_stop_lidar_hil"

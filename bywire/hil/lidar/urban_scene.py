@@ -86,10 +86,10 @@ def urban_static_mesh(world: UrbanWorld, ground: Ground, margin_m: float = GROUN
 
 
 def moving_vehicle_meshes(world: UrbanWorld, ground: Ground) -> list[Mesh]:
-    return [vehicle_mesh(ground, c) for c in _moving(world.cars)]
+    return [vehicle_mesh(ground, c) for c in moving_cars(world.cars)]
 
 
-def _moving(cars: Iterable[Car]) -> list[Car]:
+def moving_cars(cars: Iterable[Car]) -> list[Car]:
     return [c for c in cars if c.spec.driver not in STANDING_DRIVERS]
 
 
@@ -134,6 +134,7 @@ def urban_lidar_for_scenario(name_or_file: str, seed: int = 1, **sensor: Any) ->
 __all__ = [
     "VEHICLE_HEIGHT_M",
     "UrbanLidar",
+    "moving_cars",
     "moving_vehicle_meshes",
     "urban_lidar_for_scenario",
     "urban_static_mesh",

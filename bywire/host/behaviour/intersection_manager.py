@@ -272,9 +272,9 @@ class IntersectionManager:
         box = [obj.object_id for obj in objects if info.in_box(obj.x_m, obj.y_m)]
         # tracks that left their line this cycle other than into the box: lost there (before new tracks
         # at that line are given their arrival, which may be the lost one's)
-        for (oid, line), arrived in self._first_seen.items():
-            if (oid, line) not in seen and oid not in box:
-                self._lost_at_line[line] = (arrived, t_s, oid)
+        for (oid, lid), arrived in self._first_seen.items():
+            if (oid, lid) not in seen and oid not in box:
+                self._lost_at_line[lid] = (arrived, t_s, oid)
         for obj, line in at_line:
             if line is not None:
                 key = (obj.object_id, line)
@@ -287,9 +287,9 @@ class IntersectionManager:
         # One car waits at a line's front: two tracks there are one car's fragments (a car half hidden
         # is segmented in two) or a car that replaced one lost there; the line's earliest arrival stands.
         first_at: dict[str, float] = {}
-        for (oid, line), arrived in self._first_seen.items():
-            if (oid, line) in seen:
-                first_at[line] = min(arrived, first_at.get(line, arrived))
+        for (oid, lid), arrived in self._first_seen.items():
+            if (oid, lid) in seen:
+                first_at[lid] = min(arrived, first_at.get(lid, arrived))
         for obj, line in at_line:
             if line is not None:
                 self._first_seen[(obj.object_id, line)] = first_at[line]
