@@ -5,16 +5,15 @@ as boxes) and casts the revolution from it (`urban_scene.UrbanLidar`), stamped `
 `scan_message` bytes (`protocol.lidar.scan_link`).
 
 Inline (SIL, lockstep): the cast happens in the step that asked for it, so runs are deterministic.
-Threaded: a cast takes 15-20 ms and the plant's loop runs every millisecond, so the cast goes to a
-worker thread on the snapshot taken in the step. Embree and numpy release the GIL while they work (a
-1 ms sleep loop beside a thread casting without pause woke 0.1 ms late, median, 0.7 ms p99), but the
-cast's Python parts do not: in three-process HIL the plant's 1 kHz step then had gaps of 17 ms (p99)
-and 64 ms (max), with the cast thread the busiest when they opened.
-In its own process (`LidarProcess`, what the HIL plant uses): the sensor is a process, as a Velodyne
-is a device. The plant sends it a snapshot (the stamp, our pose, the moving cars' boxes: a few hundred
-bytes) and the sensor casts and sends the revolution to the host itself, at normal priority below the
-plant's. One cast is in flight at most either way: a revolution due while the last is still being cast
-is dropped and counted, as a sensor whose host link is full drops packets.
+In its own process (`LidarProcess`, what the HIL plant uses): a cast takes 15-20 ms and the plant's
+loop runs every millisecond, and a cast's Python parts hold the GIL (a worker thread in the plant left
+the stall recorder naming the cast thread as the busiest when the step's gaps opened). The sensor is a
+process, as a Velodyne is a device: the plant sends it a snapshot (the stamp, our pose, the moving cars'
+boxes: a few hundred bytes) and the sensor casts and sends the revolution to the host itself, below the
+plant's priority. What still stretches the plant's step in HIL (gaps up to 40-60 ms against 25 ms
+without LIDAR) is the host's perception process at real-time priority taking a core: see
+host/configs/urban_lidar.yaml. One cast is in flight at most: a revolution due while the last is still
+being cast is dropped and counted, as a sensor whose host link is full drops packets.
 """
 
 from __future__ import annotations
