@@ -10,8 +10,8 @@ loop runs every millisecond, and a cast's Python parts hold the GIL (a worker th
 the stall recorder naming the cast thread as the busiest when the step's gaps opened). The sensor is a
 process, as a Velodyne is a device: the plant sends it a snapshot (the stamp, our pose, the moving cars'
 boxes: a few hundred bytes) and the sensor casts and sends the revolution to the host itself, below the
-plant's priority. What still stretches the plant's step in HIL (gaps up to 40-60 ms against 25 ms
-without LIDAR) is the host's perception process at real-time priority taking a core: see
+plant's priority. What still stretches the plant's step in HIL (gaps up to 40-60 ms, against 24-27 ms with the
+perception at normal priority) is the host's perception process at real-time priority taking a core: see
 host/configs/urban_lidar.yaml. One cast is in flight at most: a revolution due while the last is still
 being cast is dropped and counted, as a sensor whose host link is full drops packets.
 """
