@@ -18,7 +18,9 @@ IGMP out of the machine's real interface (DESIGN section 5).
 
 from __future__ import annotations
 
+import faulthandler
 import logging
+import signal
 import socket
 import threading
 import time
@@ -191,6 +193,8 @@ def serve_virtual_bus(
     client reaches all the others (not itself), in order.
     """
     _quiet_remote_logging()
+    # `kill -USR1 PID` writes every thread's stack to stderr: a server that will not stop shows why.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     server = RemoteServer(host, port, interface="virtual", channel=channel)
     thread = threading.Thread(
         target=server.serve_forever,
@@ -212,6 +216,8 @@ def stop_bus_server(server: RemoteServer, thread: threading.Thread, timeout_s: f
 def run_bus_server(port: int, channel: str, host: str = "127.0.0.1") -> None:
     """Serve virtual bus `channel` on ws://host:port until interrupted (`bywire bus serve`)."""
     _quiet_remote_logging()
+    # `kill -USR1 PID` writes every thread's stack to stderr: a server that will not stop shows why.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     server = RemoteServer(host, port, interface="virtual", channel=channel)
     log.warning("serving virtual CAN bus %r on remote:ws://%s:%d", channel, host, server.server_port)
     try:
