@@ -32,6 +32,8 @@ class StopFlag:
         self.stop = False
         signal.signal(signal.SIGINT, self._handler)
         signal.signal(signal.SIGTERM, self._handler)
+        # a blocked signal is inherited too, and a handler never runs for it
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
     def _handler(self, signum: int, frame: object) -> None:
         self.stop = True

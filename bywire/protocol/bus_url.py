@@ -195,6 +195,11 @@ def serve_virtual_bus(
     _quiet_remote_logging()
     # `kill -USR1 PID` writes every thread's stack to stderr: a server that will not stop shows why.
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+    # The HIL runner stops its children with SIGINT; a child inherits an ignored or blocked SIGINT
+    # from whatever started it (seen: a server started from the test suite's worker slept through it,
+    # its only thread waiting in select).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     server = RemoteServer(host, port, interface="virtual", channel=channel)
     thread = threading.Thread(
         target=server.serve_forever,
@@ -218,6 +223,11 @@ def run_bus_server(port: int, channel: str, host: str = "127.0.0.1") -> None:
     _quiet_remote_logging()
     # `kill -USR1 PID` writes every thread's stack to stderr: a server that will not stop shows why.
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+    # The HIL runner stops its children with SIGINT; a child inherits an ignored or blocked SIGINT
+    # from whatever started it (seen: a server started from the test suite's worker slept through it,
+    # its only thread waiting in select).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     server = RemoteServer(host, port, interface="virtual", channel=channel)
     log.warning("serving virtual CAN bus %r on remote:ws://%s:%d", channel, host, server.server_port)
     try:

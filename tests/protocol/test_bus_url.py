@@ -208,6 +208,33 @@ def test_wait_for_port_times_out_on_a_closed_port() -> None:
         wait_for_port("127.0.0.1", port, timeout_s=0.2)
 
 
+@pytest.mark.parametrize("inherited", ["blocked", "ignored"])
+def test_a_bus_server_stops_on_sigint_whatever_it_inherited(inherited: str) -> None:
+    """The HIL runner stops its children with SIGINT; one started by a parent that blocks or ignores
+    SIGINT inherits that, and must stop all the same."""
+    port = _free_port()
+    code = f"from bywire.protocol.bus_url import run_bus_server; run_bus_server({port}, 'inh')"
+
+    def inherit() -> None:
+        if inherited == "blocked":
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        else:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=inherit
+    )
+    try:
+        wait_for_port("127.0.0.1", port, timeout_s=20.0)
+        os.kill(proc.pid, signal.SIGINT)
+        proc.communicate(timeout=10)
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def test_run_bus_server_serves_until_interrupted() -> None:
     """`bywire bus serve` path: a separate process serves the bus, two clients talk through it."""
     port = _free_port()
