@@ -45,8 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "config",
         nargs="?",
-        help="host configuration: a shipped name (default, gcdc, urban, isolated_perception) or a "
-        "YAML/TOML file (default: `default`; with --scenario: the scenario's host.config)",
+        help="host configuration: a shipped name (default, gcdc, urban, urban_lidar, isolated_perception) "
+        "or a YAML/TOML file (default: `default`; with --scenario: the scenario's host.config)",
     )
     mission = p.add_argument_group("mission (what the driver gives the car)")
     mission.add_argument("--rndf", type=Path, help="urban driving: the road network (DARPA RNDF)")
