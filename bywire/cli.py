@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -247,6 +248,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except RuntimeError as exc:  # a HIL process that did not start or died: its log tail says why
         print(f"error: {exc}", file=sys.stderr)
+        # where it was raised: for an error that is not ours ("deque mutated during iteration") the
+        # message alone does not say which code raced with which
+        frames = reversed(traceback.extract_tb(exc.__traceback__)[-4:])
+        where = " <- ".join(f"{f.filename.rsplit('/', 1)[-1]}:{f.lineno} {f.name}" for f in frames)
+        print(f"  at {where}", file=sys.stderr)
         return 1
     except ValueError as exc:  # scenario, calibration and URL errors say what and where
         print(f"error: {exc}", file=sys.stderr)
