@@ -228,14 +228,16 @@ def run_bus_server(port: int, channel: str, host: str = "127.0.0.1") -> None:
     # its only thread waiting in select).
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    server = RemoteServer(host, port, interface="virtual", channel=channel)
-    log.warning("serving virtual CAN bus %r on remote:ws://%s:%d", channel, host, server.server_port)
-    try:
+    server: RemoteServer | None = None
+    try:  # from the server's creation on: an interrupt as soon as its port is open still closes it
+        server = RemoteServer(host, port, interface="virtual", channel=channel)
+        log.warning("serving virtual CAN bus %r on remote:ws://%s:%d", channel, host, server.server_port)
         server.serve_forever(poll_interval=0.1)
     except KeyboardInterrupt:
         pass
     finally:
-        server.server_close()
+        if server is not None:
+            server.server_close()
 
 
 def wait_for_port(host: str, port: int, timeout_s: float = 5.0) -> None:
