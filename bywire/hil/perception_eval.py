@@ -52,7 +52,6 @@ def perception_metrics(
         if ego is None:
             continue
         cars = np.array([v for v in truth.values()], float).reshape(-1, 2)
-        near = cars[np.hypot(cars[:, 0] - ego[0], cars[:, 1] - ego[1]) <= RANGE_M]
         seen = np.array([[o[1] - dx, o[2] - dy] for o in objs], float).reshape(-1, 2)
         ids.update(str(o[0]) for o in objs)
         matched_truth: set[int] = set()
@@ -67,7 +66,6 @@ def perception_metrics(
         false_n.append(len(seen) - len(matched_seen))
         near_idx = np.flatnonzero(np.hypot(cars[:, 0] - ego[0], cars[:, 1] - ego[1]) <= RANGE_M)
         missed_n.append(sum(1 for i in near_idx if int(i) not in matched_truth))
-        del near
     m: dict[str, Any] = {
         "perception_lists": len(false_n),
         "perception_tracks": len(ids),

@@ -386,6 +386,23 @@ def with_perception(scenario: Scenario, mode: str) -> Scenario:
     )
 
 
+# The hand-made urban scenarios (seed 000; not the DARPA missions, which take tens of minutes): the
+# tests run each with the object list and with the LIDAR.
+URBAN_HAND_MADE = (
+    "four_way_stop_0",
+    "four_way_stop_1",
+    "four_way_stop_2",
+    "four_way_stop_3",
+    "four_way_stop_stuck_car",
+    "left_turn_oncoming",
+    "merge_moving_traffic",
+    "lane_change",
+    "pass_parked_car",
+    "blocked_road_replan",
+    "estop_in_intersection",
+    "host_freeze_in_turn",
+)
+
 # The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run
 # each, the benchmarks time each.
 CONTRACT_SCENARIOS = (
@@ -437,6 +454,7 @@ def load_scenario(name_or_file: str) -> Scenario:
 
 __all__ = [
     "PERCEPTION_MODES",
+    "URBAN_HAND_MADE",
     "Check",
     "EcuState",
     "FaultEvent",

@@ -15,24 +15,16 @@ import pytest
 
 from bywire.hil.evaluate import evaluate
 from bywire.hil.perception_eval import perception_metrics
-from bywire.hil.scenario import ScenarioError, load_scenario, parse_scenario, with_perception
+from bywire.hil.scenario import (
+    URBAN_HAND_MADE,
+    ScenarioError,
+    load_scenario,
+    parse_scenario,
+    with_perception,
+)
 from bywire.hil.sil import run_sil
 
-URBAN = (
-    "four_way_stop_0",
-    "four_way_stop_1",
-    "four_way_stop_2",
-    "four_way_stop_3",
-    "four_way_stop_stuck_car",
-    "left_turn_oncoming",
-    "merge_moving_traffic",
-    "lane_change",
-    "pass_parked_car",
-    "blocked_road_replan",
-    "estop_in_intersection",
-    "host_freeze_in_turn",
-    "rndf_offset",
-)
+URBAN = (*URBAN_HAND_MADE, "rndf_offset")
 CONTRACT = (
     "perception_tracks",
     "perception_false_objects",

@@ -16,23 +16,10 @@ import pytest
 from shared_data import shared_data_dir
 
 from bywire.hil.evaluate import evaluate
-from bywire.hil.scenario import Check, Scenario, load_scenario
+from bywire.hil.scenario import URBAN_HAND_MADE, Check, Scenario, load_scenario
 from bywire.hil.sil import run_sil
 
-HAND_MADE = (
-    "four_way_stop_0",
-    "four_way_stop_1",
-    "four_way_stop_2",
-    "four_way_stop_3",
-    "four_way_stop_stuck_car",
-    "left_turn_oncoming",
-    "merge_moving_traffic",
-    "lane_change",
-    "pass_parked_car",
-    "blocked_road_replan",
-    "estop_in_intersection",
-    "host_freeze_in_turn",
-)
+HAND_MADE = URBAN_HAND_MADE
 CONTRACT = (
     "checkpoints_reached",
     "precedence_violations",

@@ -69,9 +69,6 @@ class LidarSender:
         self.revolutions += 1
         self.send(data)
 
-    def close(self) -> None:
-        pass
-
     def summary(self) -> dict[str, Any]:
         """What the sensor did (JSON-able): revolutions cast and sent, dropped, points, cast time (ms;
         wall time, informational)."""

@@ -14,37 +14,27 @@ falls behind reads the latest revolution, never a backlog, and the sensor never 
 
 from __future__ import annotations
 
-from collections import deque
-from typing import Any, ClassVar
+from typing import Any
 from urllib.parse import urlparse
+
+from bywire.protocol.objects import MemObjectLink
 
 KEEP = 2  # revolutions queued at most: the one being read and the next
 
 
-class MemScanLink:
-    """In-process channel (SIL): the newest `KEEP` messages, in order."""
-
-    _channels: ClassVar[dict[str, deque[bytes]]] = {}
+class MemScanLink(MemObjectLink):
+    """In-process channel (SIL): the newest `KEEP` messages, in order (`MemObjectLink`'s channel, counted)."""
 
     def __init__(self, name: str, keep: int = KEEP) -> None:
-        self.name = name
-        self._q = MemScanLink._channels.setdefault(name, deque(maxlen=keep))
+        super().__init__(name, maxlen=keep)
         self.sent = 0
         self.dropped = 0
 
     def send(self, data: bytes) -> None:
         if len(self._q) == self._q.maxlen:
             self.dropped += 1
-        self._q.append(data)
+        super().send(data)
         self.sent += 1
-
-    def receive(self) -> list[bytes]:
-        out = list(self._q)
-        self._q.clear()
-        return out
-
-    def close(self) -> None:
-        MemScanLink._channels.pop(self.name, None)
 
 
 class ZmqScanLink:

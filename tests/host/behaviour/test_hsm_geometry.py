@@ -354,16 +354,24 @@ def _waiting_at(manager, line_id: str, object_id: str, speed_mps: float = 0.0, b
     return TrackedObject(object_id, lx - d * math.cos(h), ly - d * math.sin(h), h, speed_mps, 4.5, 1.8)
 
 
-def test_a_waiting_car_hidden_then_found_under_a_new_id_keeps_its_arrival() -> None:
-    """A LIDAR tracker loses a car waiting at its line while another crosses between us, and finds it
-    again under a new id, often as it starts: the same car, still first in the queue."""
-    from bywire.host.behaviour.intersection_manager import REACQUIRE_S, IntersectionManager
+def _four_way_stop_manager():  # type: ignore[no-untyped-def]
+    """The manager of the cross network's four-way stop, and a stop line other than ours."""
+    from bywire.host.behaviour.intersection_manager import IntersectionManager
 
     net = cross_network([1, 2], stops="all")
     b = Behaviour(net.planner, lane_index=net.lane_index)
     ev = b.route_view.intersections[0]
     m = IntersectionManager(net.graph, b.route_view, ev, None)
     other = next(line for line in m._line_pose if line != str(ev.approach))
+    return m, other
+
+
+def test_a_waiting_car_hidden_then_found_under_a_new_id_keeps_its_arrival() -> None:
+    """A LIDAR tracker loses a car waiting at its line while another crosses between us, and finds it
+    again under a new id, often as it starts: the same car, still first in the queue."""
+    from bywire.host.behaviour.intersection_manager import REACQUIRE_S
+
+    m, other = _four_way_stop_manager()
     m.update(0.0, (_waiting_at(m, other, "a"),))
     assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("a", 0.0)]
     m.update(1.0, ())  # hidden: still waits there
@@ -380,13 +388,7 @@ def test_a_waiting_car_hidden_then_found_under_a_new_id_keeps_its_arrival() -> N
 
 def test_two_tracks_at_one_line_share_its_earliest_arrival() -> None:
     """A car half hidden is segmented in two: the fragment that stays keeps the car's place in the queue."""
-    from bywire.host.behaviour.intersection_manager import IntersectionManager
-
-    net = cross_network([1, 2], stops="all")
-    b = Behaviour(net.planner, lane_index=net.lane_index)
-    ev = b.route_view.intersections[0]
-    m = IntersectionManager(net.graph, b.route_view, ev, None)
-    other = next(line for line in m._line_pose if line != str(ev.approach))
+    m, other = _four_way_stop_manager()
     m.update(0.0, (_waiting_at(m, other, "a"),))
     m.update(5.0, (_waiting_at(m, other, "a"), _waiting_at(m, other, "b", back_m=1.0)))
     assert sorted((w.vehicle_id, w.arrived_s) for w in m.waiting) == [("a", 0.0), ("b", 0.0)]

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from bywire.hil.runner import free_port
-from bywire.protocol.lidar.scan_link import KEEP, MemScanLink, open_scan_link
+from bywire.protocol.lidar.scan_link import KEEP, MemScanLink, ZmqScanLink, open_scan_link
 
 
 def test_mem_link_keeps_the_newest_revolutions_in_order() -> None:
@@ -28,11 +28,10 @@ def test_tcp_link_carries_a_whole_revolution_and_never_blocks_the_sender() -> No
     url = f"tcp://127.0.0.1:{free_port()}"
     sender = open_scan_link(url, receiver=False)
     try:
-        # nobody listening: sends return at once, and what cannot be queued is counted as dropped
-        start = time.monotonic()
+        # nobody listening: a send never waits for a receiver; what cannot be queued is dropped, counted
         for _ in range(10):
             sender.send(b"x" * 1_600_000)
-        assert time.monotonic() - start < 5.0  # no send waits for a receiver (a bound, not a speed)
+        assert isinstance(sender, ZmqScanLink) and sender.dropped > 0
         receiver = open_scan_link(url, receiver=True)
         try:
             payload = bytes(range(256)) * 6250  # 1.6 MB

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from bywire.host.lateral import VehiclePose
-from bywire.host.modules.estimation.lidar_perception import MAX_POSE_AGE_S, SENSOR_FORWARD_M
+from bywire.host.modules.estimation.lidar_perception import MAX_POSE_AGE_S, SENSOR_FORWARD_M, scan_of
 from bywire.host.modules.perception_messages import (
     LANE_OFFSET,
     PERCEPTION_SCAN,
@@ -32,7 +32,6 @@ from bywire.host.modules.perception_messages import (
 from bywire.host.modules.planning.urban_behaviour import extrapolate
 from bywire.host.modules.urban_messages import URBAN_POSE, UrbanPose
 from bywire.host.perception.lane_offset import LaneOffsetEstimator
-from bywire.host.perception.scan import Scan
 from bywire.host.roadnet.graph import DEFAULT_LANE_WIDTH_M, EdgeKind
 from bywire.host.runtime.module import Module, ModuleContext
 
@@ -98,7 +97,7 @@ class LaneOffsetModule(Module):
         if pose.speed_mps < 0.0:
             h += math.pi  # backwards: the lane we are on runs the other way round our heading
         lane = self._map_lane(x, y, h)
-        s = Scan(scan.xyz_m, scan.reflectance, scan.beam, scan.stamp_s, scan.sensor_height_m)
+        s = scan_of(scan)
         if lane is None:
             # not on a lane: the markings still go into the map (the car moves), nothing is measured
             self.estimator.markers.update(s, VehiclePose(x, y, h))

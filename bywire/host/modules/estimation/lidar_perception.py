@@ -52,6 +52,11 @@ def sensor_pose(pose: UrbanPose, stamp_s: float, forward_m: float) -> EgoPose:
     return EgoPose(x + forward_m * math.cos(h), y + forward_m * math.sin(h), h)
 
 
+def scan_of(msg: PerceptionScan) -> Scan:
+    """The revolution of a `/perception/scan` message, as the perception's functions take it."""
+    return Scan(msg.xyz_m, msg.reflectance, msg.beam, msg.stamp_s, msg.sensor_height_m)
+
+
 def _flip_towards(yaw_rad: float, reference_rad: float) -> float:
     """`yaw_rad` or `yaw_rad + pi`, whichever is nearer `reference_rad`."""
     d = math.remainder(yaw_rad - reference_rad, 2.0 * math.pi)
@@ -101,7 +106,7 @@ class LidarPerception(Module):
 
     def _frame(self, now: float, msg: PerceptionScan, pose: UrbanPose) -> None:
         self._stamp_s = msg.stamp_s
-        scan = Scan(msg.xyz_m, msg.reflectance, msg.beam, msg.stamp_s, msg.sensor_height_m)
+        scan = scan_of(msg)
         self.grid.update(scan, sensor_pose(pose, msg.stamp_s, self.forward_m))
         seg = segment(self.grid.snapshot(), self.segmentation)
         found = [o for o in seg.objects if self.shape.accepts(o)]
@@ -136,4 +141,4 @@ class LidarPerception(Module):
                            max(t.width_m, 0.5))  # fmt: skip
 
 
-__all__ = ["LidarPerception", "sensor_pose"]
+__all__ = ["LidarPerception", "scan_of", "sensor_pose"]
