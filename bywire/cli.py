@@ -104,6 +104,11 @@ COMMANDS: tuple[Command, ...] = (
         "benchmarks.perception",
     ),
     Command(
+        "bench zone",
+        "the zone planner on Autoware's parking lot and a maze, beside OMPL's planners (seed 000 section 10)",
+        "benchmarks.zone",
+    ),
+    Command(
         "bench hil",
         "the three-process HIL under a standard background load: period gaps, heartbeat gaps, spurious stops",
         "benchmarks.hil_load",
@@ -146,6 +151,13 @@ COMMANDS: tuple[Command, ...] = (
         "the fastest route through an MDF's checkpoints, in order",
         "bywire.host.roadnet.roadnet_cli",
         "mission_plan",
+    ),
+    Command("zone", "zone navigation (seed 000 section 10)", metavar="COMMAND"),
+    Command(
+        "zone plan",
+        "hybrid A* on an occupancy grid (.npy or image): path, numbers, plot",
+        "bywire.host.navigation.zone_cli",
+        "plan",
     ),
     Command("behaviour", "the urban behaviour (seed 000 section 8)", metavar="COMMAND"),
     Command(

@@ -1,0 +1,130 @@
+"""The obstacle map the zone planner searches on: a boolean occupancy grid with its geometry (seed 000
+Sec. 10.1: "an obstacle map obtained from a 360-deg laser range scanner").
+
+`GridMap` holds `occupied[row, col]` (row: +y, col: +x), the cell size and the world position of cell
+(0, 0)'s corner. Anything outside the grid is occupied: the planner never leaves the map it was given.
+It is built from the perception's occupancy grid (`from_probabilities`), from an image or a `.npy`
+array (`load`: the `bywire zone plan` command), or from boxes (`from_boxes`: scenarios and tests).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["GridMap", "load"]
+
+
+@dataclass(frozen=True)
+class GridMap:
+    occupied: np.ndarray  # bool (rows, cols); row index grows with y, column index with x
+    resolution_m: float  # cell edge
+    origin_xy_m: tuple[float, float] = (0.0, 0.0)  # world position of cell (0, 0)'s lower-left corner
+
+    def __post_init__(self) -> None:
+        if self.occupied.ndim != 2 or self.occupied.dtype != bool:
+            raise ValueError(
+                f"GridMap: occupied must be a 2-D bool array, not {self.occupied.dtype} {self.occupied.shape}"
+            )
+        if min(self.occupied.shape) < 2:
+            raise ValueError(f"GridMap: the grid {self.occupied.shape} must be at least 2 x 2 cells")
+        if not (math.isfinite(self.resolution_m) and self.resolution_m > 0.0):
+            raise ValueError(f"GridMap: resolution_m = {self.resolution_m} must be finite and > 0")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.occupied.shape[0]), int(self.occupied.shape[1]))
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """(width along x, height along y) in metres."""
+        return self.shape[1] * self.resolution_m, self.shape[0] * self.resolution_m
+
+    def cell_of(self, x_m: np.ndarray | float, y_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) of the cells holding the points (may be outside the grid)."""
+        col = np.floor((np.asarray(x_m) - self.origin_xy_m[0]) / self.resolution_m).astype(np.int64)
+        row = np.floor((np.asarray(y_m) - self.origin_xy_m[1]) / self.resolution_m).astype(np.int64)
+        return row, col
+
+    def centre_of(self, row: np.ndarray | int, col: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+        """World position (x_m, y_m) of cell centres."""
+        x = self.origin_xy_m[0] + (np.asarray(col) + 0.5) * self.resolution_m
+        y = self.origin_xy_m[1] + (np.asarray(row) + 0.5) * self.resolution_m
+        return x, y
+
+    def inside(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        return (row >= 0) & (row < self.shape[0]) & (col >= 0) & (col < self.shape[1])
+
+    def occupied_at(self, x_m: np.ndarray | float, y_m: np.ndarray | float) -> np.ndarray:
+        """Occupancy of the cells under the points; outside the grid counts as occupied."""
+        row, col = self.cell_of(x_m, y_m)
+        ok = self.inside(row, col)
+        out = np.ones(row.shape, dtype=bool)
+        out[ok] = self.occupied[row[ok], col[ok]]
+        return out
+
+    @classmethod
+    def from_probabilities(
+        cls,
+        p_occupied: np.ndarray,
+        resolution_m: float,
+        origin_xy_m: tuple[float, float],
+        threshold: float = 0.5,
+    ) -> GridMap:
+        """An occupancy grid's cells above `threshold` (unknown cells count as free: the grid's own prior)."""
+        return cls(np.asarray(p_occupied) > threshold, resolution_m, origin_xy_m)
+
+    @classmethod
+    def from_boxes(
+        cls,
+        size_m: tuple[float, float],
+        resolution_m: float,
+        boxes: list[tuple[float, float, float, float, float]],
+        origin_xy_m: tuple[float, float] = (0.0, 0.0),
+    ) -> GridMap:
+        """A map `size_m` (x, y) with oriented boxes (centre x, centre y, heading, length, width) filled."""
+        cols = round(size_m[0] / resolution_m)
+        rows = round(size_m[1] / resolution_m)
+        occ = np.zeros((rows, cols), dtype=bool)
+        grid = cls(occ, resolution_m, origin_xy_m)
+        yy, xx = np.mgrid[0:rows, 0:cols]
+        cx, cy = grid.centre_of(yy, xx)
+        for bx, by, heading, length, width in boxes:
+            c, s = math.cos(heading), math.sin(heading)
+            along = (cx - bx) * c + (cy - by) * s
+            across = -(cx - bx) * s + (cy - by) * c
+            # a cell is filled where any part of it is in the box (half a cell's diagonal of slack)
+            slack = 0.5 * resolution_m * (abs(c) + abs(s))
+            occ |= (np.abs(along) <= 0.5 * length + slack) & (np.abs(across) <= 0.5 * width + slack)
+        return grid
+
+
+def load(path: Path, resolution_m: float, origin_xy_m: tuple[float, float] = (0.0, 0.0)) -> GridMap:
+    """A map from a `.npy` array (nonzero: occupied) or an image (dark: occupied), row 0 at the *top* of
+    an image as image tools draw it (flipped so that y grows upwards) and at y = origin in an array."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such map file")
+    if path.suffix.lower() == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"{path}: not a numpy array file ({exc})") from exc
+        if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+            raise ValueError(f"{path}: a map must be a 2-D numeric array, not {arr.dtype} {arr.shape}")
+        return GridMap(np.asarray(arr != 0), resolution_m, origin_xy_m)
+    import matplotlib.image as mpimg
+
+    try:
+        img = mpimg.imread(path)
+    except (ValueError, OSError, SyntaxError) as exc:
+        raise ValueError(f"{path}: not an image matplotlib can read ({exc})") from exc
+    if img.ndim == 3:
+        img = img[..., :3].mean(axis=2)
+    img = img.astype(float)
+    if img.max() > 1.0:
+        img = img / 255.0
+    return GridMap(np.flipud(img < 0.5).copy(), resolution_m, origin_xy_m)

@@ -1,0 +1,331 @@
+"""Reeds-Shepp paths: the shortest path of a car that drives forward and backward at a bounded curvature
+(Reeds & Shepp 1990), in closed form. Seed 000 Sec. 10.3.1 names them as the optimal local metric and
+used the simpler RTR metric instead "due to its computational simplicity"; closed-form Reeds-Shepp costs
+a few microseconds more per call and is never longer than the true optimum, so the search's kinematic
+heuristic is exact on an empty map (deviation from the paper, on purpose).
+
+The formulas are those of Reeds and Shepp's section 8 as OMPL's `ReedsSheppStateSpace` writes them: the
+five families CSC, CCC, CCCC, CCSC and CCSCC, each word solved in the normalised frame (start at the
+origin heading along x, unit turning radius) and its mirror images by time flip (x, phi -> -x, -phi),
+reflection (y, phi -> -y, -phi) and both; CCC and CCSC also backwards. A path is a tuple of `Segment`s:
+a steering (`L`, `S`, `R`) and a signed arc length in radii (negative: reversing).
+
+`shortest_length` is the heuristic's call; `shortest_path` and `sample` give the path for the search's
+analytic expansion ("shot" to the goal) and for plots.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "RsPath", "Segment", "all_paths", "normalised", "sample", "shortest_length", "shortest_normalised_length",
+    "shortest_path",
+]  # fmt: skip
+
+_ZERO = 10.0 * np.finfo(float).eps
+_HALF_PI = 0.5 * math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Segment:
+    steer: str  # "L" (left at the minimum radius), "S" (straight) or "R" (right)
+    length: float  # arc length in turning radii; < 0 drives backwards
+
+
+@dataclass(frozen=True)
+class RsPath:
+    segments: tuple[Segment, ...]
+
+    @property
+    def length(self) -> float:
+        """Total arc length in turning radii."""
+        return sum(abs(s.length) for s in self.segments)
+
+    @property
+    def direction_changes(self) -> int:
+        signs = [math.copysign(1.0, s.length) for s in self.segments if abs(s.length) > 1e-9]
+        return sum(1 for a, b in itertools.pairwise(signs) if a != b)
+
+
+def _mod2pi(x: float) -> float:
+    v = math.fmod(x, _TWO_PI)
+    if v < -math.pi:
+        v += _TWO_PI
+    elif v > math.pi:
+        v -= _TWO_PI
+    return v
+
+
+def _polar(x: float, y: float) -> tuple[float, float]:
+    return math.hypot(x, y), math.atan2(y, x)
+
+
+def _tau_omega(u: float, v: float, xi: float, eta: float, phi: float) -> tuple[float, float]:
+    delta = _mod2pi(u - v)
+    a = math.sin(u) - math.sin(delta)
+    b = math.cos(u) - math.cos(delta) - 1.0
+    t1 = math.atan2(eta * a - xi * b, xi * a + eta * b)
+    t2 = 2.0 * (math.cos(delta) - math.cos(v) - math.cos(u)) + 3.0
+    tau = _mod2pi(t1 + math.pi) if t2 < 0 else _mod2pi(t1)
+    return tau, _mod2pi(tau - u + v - phi)
+
+
+# ---------------------------------------------------------------------------------- the words (sec. 8)
+
+
+def _lp_sp_lp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.1
+    u, t = _polar(x - math.sin(phi), y - 1.0 + math.cos(phi))
+    if t >= -_ZERO:
+        v = _mod2pi(phi - t)
+        if v >= -_ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_sp_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.2
+    u1, t1 = _polar(x + math.sin(phi), y - 1.0 - math.cos(phi))
+    u1 = u1 * u1
+    if u1 >= 4.0:
+        u = math.sqrt(u1 - 4.0)
+        theta = math.atan2(2.0, u)
+        t = _mod2pi(t1 + theta)
+        v = _mod2pi(t - phi)
+        if t >= -_ZERO and v >= -_ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_rm_l(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.3
+    xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
+    u1, theta = _polar(xi, eta)
+    if u1 <= 4.0:
+        u = -2.0 * math.asin(0.25 * u1)
+        t = _mod2pi(theta + 0.5 * u + math.pi)
+        v = _mod2pi(phi - t + u)
+        if t >= -_ZERO and u <= _ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_rup_lum_rm(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.7
+    xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+    rho = 0.25 * (2.0 + math.hypot(xi, eta))
+    if rho <= 1.0:
+        u = math.acos(rho)
+        t, v = _tau_omega(u, -u, xi, eta, phi)
+        if t >= -_ZERO and v <= _ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_rum_lum_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.8
+    xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+    rho = (20.0 - xi * xi - eta * eta) / 16.0
+    if 0.0 <= rho <= 1.0:
+        u = -math.acos(rho)
+        if u >= -_HALF_PI:
+            t, v = _tau_omega(u, u, xi, eta, phi)
+            if t >= -_ZERO and v >= -_ZERO:
+                return t, u, v
+    return None
+
+
+def _lp_rm_sm_lm(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.9
+    xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
+    rho, theta = _polar(xi, eta)
+    if rho >= 2.0:
+        r = math.sqrt(rho * rho - 4.0)
+        u = 2.0 - r
+        t = _mod2pi(theta + math.atan2(r, -2.0))
+        v = _mod2pi(phi - _HALF_PI - t)
+        if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_rm_sm_rm(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.10
+    xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+    rho, theta = _polar(-eta, xi)
+    if rho >= 2.0:
+        t = theta
+        u = 2.0 - rho
+        v = _mod2pi(t + _HALF_PI - phi)
+        if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
+            return t, u, v
+    return None
+
+
+def _lp_rm_slm_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.11
+    xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+    rho, _ = _polar(xi, eta)
+    if rho >= 2.0:
+        u = 4.0 - math.sqrt(rho * rho - 4.0)
+        if u <= _ZERO:
+            t = _mod2pi(math.atan2((4.0 - u) * xi - 2.0 * eta, -2.0 * xi + (u - 4.0) * eta))
+            v = _mod2pi(t - phi)
+            if t >= -_ZERO and v >= -_ZERO:
+                return t, u, v
+    return None
+
+
+# ---------------------------------------------------------------------------------- the families
+
+_FLIP = str.maketrans("LR", "RL")
+_CURVATURE = {"L": 1.0, "S": 0.0, "R": -1.0}
+
+
+def _path(word: str, lengths: tuple[float, ...], reflect: bool) -> RsPath:
+    steers = word.translate(_FLIP) if reflect else word
+    return RsPath(tuple(Segment(s, v) for s, v in zip(steers, lengths, strict=True)))
+
+
+def _symmetric(solve: object, word: str, x: float, y: float, phi: float, shape: str) -> Iterator[RsPath]:
+    """The word and its three mirror images (time flip, reflection, both); `shape` maps (t, u, v) and
+    the sign of time to the segment lengths."""
+    assert callable(solve)
+    for sx, sy, reflect in ((1.0, 1.0, False), (-1.0, 1.0, False), (1.0, -1.0, True), (-1.0, -1.0, True)):
+        sphi = phi * sx * sy
+        r = solve(sx * x, sy * y, sphi)
+        if r is not None:
+            yield _path(word, _shape(shape, r, sx), reflect)
+
+
+def _shape(shape: str, r: tuple[float, float, float], sign: float) -> tuple[float, ...]:
+    t, u, v = r
+    if shape == "tuv":
+        out: tuple[float, ...] = (t, u, v)
+    elif shape == "vut":
+        out = (v, u, t)
+    elif shape == "tuUv":  # CCCC with u then -u
+        out = (t, u, -u, v)
+    elif shape == "tuuv":
+        out = (t, u, u, v)
+    elif shape == "tHuv":  # CCSC: t, -pi/2, u, v
+        out = (t, -_HALF_PI, u, v)
+    elif shape == "vuHt":  # CCSC backwards: v, u, -pi/2, t
+        out = (v, u, -_HALF_PI, t)
+    elif shape == "tHuHv":  # CCSCC
+        out = (t, -_HALF_PI, u, -_HALF_PI, v)
+    else:  # pragma: no cover - a programming error
+        raise ValueError(shape)
+    return tuple(sign * a for a in out)
+
+
+def all_paths(x: float, y: float, phi: float) -> list[RsPath]:
+    """Every Reeds-Shepp candidate from (0, 0, 0) to (x, y, phi), unit turning radius."""
+    out: list[RsPath] = []
+    out += _symmetric(_lp_sp_lp, "LSL", x, y, phi, "tuv")
+    out += _symmetric(_lp_sp_rp, "LSR", x, y, phi, "tuv")
+    out += _symmetric(_lp_rm_l, "LRL", x, y, phi, "tuv")
+    c, s = math.cos(phi), math.sin(phi)
+    xb, yb = x * c + y * s, x * s - y * c
+    out += _symmetric(_lp_rm_l, "LRL", xb, yb, phi, "vut")
+    out += _symmetric(_lp_rup_lum_rm, "LRLR", x, y, phi, "tuUv")
+    out += _symmetric(_lp_rum_lum_rp, "LRLR", x, y, phi, "tuuv")
+    out += _symmetric(_lp_rm_sm_lm, "LRSL", x, y, phi, "tHuv")
+    out += _symmetric(_lp_rm_sm_rm, "LRSR", x, y, phi, "tHuv")
+    out += _symmetric(_lp_rm_sm_lm, "LSRL", xb, yb, phi, "vuHt")
+    out += _symmetric(_lp_rm_sm_rm, "RSRL", xb, yb, phi, "vuHt")
+    out += _symmetric(_lp_rm_slm_rp, "LRSLR", x, y, phi, "tHuHv")
+    return out
+
+
+# (solver, frame, shape) of every word: `shortest_length` walks them without building paths
+_WORDS: tuple[tuple[object, bool, str], ...] = (
+    (_lp_sp_lp, False, "tuv"), (_lp_sp_rp, False, "tuv"), (_lp_rm_l, False, "tuv"), (_lp_rm_l, True, "vut"),
+    (_lp_rup_lum_rm, False, "tuUv"), (_lp_rum_lum_rp, False, "tuuv"), (_lp_rm_sm_lm, False, "tHuv"),
+    (_lp_rm_sm_rm, False, "tHuv"), (_lp_rm_sm_lm, True, "vuHt"), (_lp_rm_sm_rm, True, "vuHt"),
+    (_lp_rm_slm_rp, False, "tHuHv"),
+)  # fmt: skip
+_EXTRA = {
+    "tuv": 0.0,
+    "vut": 0.0,
+    "tuUv": 0.0,
+    "tuuv": 0.0,
+    "tHuv": _HALF_PI,
+    "vuHt": _HALF_PI,
+    "tHuHv": math.pi,
+}
+_U_TWICE = {"tuUv", "tuuv"}
+
+
+def shortest_normalised_length(x: float, y: float, phi: float) -> float:
+    """The shortest path's length in radii, in the normalised frame (what `all_paths` finds, faster)."""
+    c, s = math.cos(phi), math.sin(phi)
+    xb, yb = x * c + y * s, x * s - y * c
+    best = math.inf
+    for solve, backwards, shape in _WORDS:
+        px, py = (xb, yb) if backwards else (x, y)
+        for sx, sy in ((1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)):
+            r = solve(sx * px, sy * py, phi * sx * sy)  # type: ignore[operator]
+            if r is not None:
+                t, u, v = r
+                length = abs(t) + abs(u) * (2.0 if shape in _U_TWICE else 1.0) + abs(v) + _EXTRA[shape]
+                if length < best:
+                    best = length
+    return best
+
+
+def normalised(
+    start: tuple[float, float, float], goal: tuple[float, float, float], radius_m: float
+) -> tuple[float, float, float]:
+    if not (math.isfinite(radius_m) and radius_m > 0.0):
+        raise ValueError(f"reeds_shepp: radius_m = {radius_m} must be finite and > 0")
+    dx, dy = goal[0] - start[0], goal[1] - start[1]
+    c, s = math.cos(start[2]), math.sin(start[2])
+    return (c * dx + s * dy) / radius_m, (-s * dx + c * dy) / radius_m, _mod2pi(goal[2] - start[2])
+
+
+def shortest_path(
+    start: tuple[float, float, float], goal: tuple[float, float, float], radius_m: float
+) -> RsPath:
+    """The shortest Reeds-Shepp path between two poses (x_m, y_m, heading_rad); lengths in radii."""
+    x, y, phi = normalised(start, goal, radius_m)
+    paths = all_paths(x, y, phi)
+    if not paths:  # pragma: no cover - CSC always has a solution
+        raise RuntimeError(f"reeds_shepp: no path to ({x}, {y}, {phi})")
+    return min(paths, key=lambda p: p.length)
+
+
+def shortest_length(
+    start: tuple[float, float, float], goal: tuple[float, float, float], radius_m: float
+) -> float:
+    """Length in metres of the shortest Reeds-Shepp path between two poses."""
+    return shortest_normalised_length(*normalised(start, goal, radius_m)) * radius_m
+
+
+def sample(
+    start: tuple[float, float, float], path: RsPath, radius_m: float, step_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses along `path` from `start` every `step_m` or closer (each segment's end exactly):
+    (N x 3 array of x_m, y_m, heading_rad, N signs: +1 forward, -1 reversing)."""
+    x, y, th = start
+    parts = [np.array([[x, y, th]])]
+    sign_parts = [np.array([1.0])]
+    for seg in path.segments:
+        length_m = seg.length * radius_m
+        if abs(length_m) < 1e-12:
+            continue
+        n = max(1, math.ceil(abs(length_m) / step_m))
+        ds = np.arange(1, n + 1) * (length_m / n)
+        k = _CURVATURE[seg.steer] / radius_m
+        if k == 0.0:
+            px, py, pth = x + ds * math.cos(th), y + ds * math.sin(th), np.full(n, th)
+        else:
+            pth = th + k * ds
+            px = x + (np.sin(pth) - math.sin(th)) / k
+            py = y - (np.cos(pth) - math.cos(th)) / k
+        parts.append(np.column_stack((px, py, pth)))
+        sign_parts.append(np.full(n, math.copysign(1.0, length_m)))
+        x, y, th = float(px[-1]), float(py[-1]), float(pth[-1])
+    signs = np.concatenate(sign_parts)
+    if signs.size > 1:
+        signs[0] = signs[1]
+    return np.vstack(parts), signs
