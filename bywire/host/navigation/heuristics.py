@@ -1,10 +1,10 @@
 """The search's two costs-to-go, combined by their maximum (seed 000 Sec. 10.3).
 
 1. Kinematic (Sec. 10.3.1): the shortest Reeds-Shepp path to the goal, ignoring obstacles
-   (`reeds_shepp`; the paper used the RTR metric, never shorter than the true optimum only by luck of
-   the car's geometry: Reeds-Shepp is the exact obstacle-free optimum, so it is the tightest admissible
-   kinematic bound). Far from the goal it is bounded below by the straight-line distance, which costs
-   nothing to evaluate; `HeuristicField.kinematic` switches on the full metric within `rs_range_m`.
+   (`reeds_shepp`). The paper used the RTR metric for its simplicity; Reeds-Shepp is the exact
+   obstacle-free optimum of a car that may reverse, so it is the tightest kinematic lower bound there
+   is. Far from the goal it is replaced by the straight-line distance (a weaker bound that costs
+   nothing); `HeuristicField.kinematic` switches to the full metric within `rs_range_m`.
 2. Obstacles (Sec. 10.3.2): the shortest distance to the goal through the orientation-invariant free
    space (`CSpace.disk_free`), by Dijkstra from the goal over the grid's 8-connected cells. It knows
    the free space's topology (no dead ends), which is what the paper wanted of its Voronoi cost. The
@@ -13,9 +13,8 @@
    space and is longer than the shortest way hugging the corner, by up to half the corridor width per
    bend. We keep its topology and drop its overestimate: the grid distance is divided by the 8-connected
    metric's worst excess over the Euclidean (1.0824, at 22.5 deg) and has two cell diagonals taken off
-   (start and goal anywhere in their cells), so it never exceeds the true shortest path. The Voronoi
-   lines themselves are kept for what else the paper used them for (`voronoi.py`: the clearance the
-   smoother and the plots use).
+   (start and goal anywhere in their cells). Without that correction the property test finds maps where
+   the raw grid distance exceeds the search's own optimum; with it, none.
 
 Both are lower bounds on the length of any collision-free path; the search's costs are lengths
 weighted by factors >= 1, so A* with their maximum finds the least-cost path of its graph. The property

@@ -153,7 +153,7 @@ def plan(
     exhaustive: bool = False,
     keep_tree: bool = False,
     primitives: MotionPrimitives | None = None,
-    field_: HeuristicField | None = None,
+    heuristic_field: HeuristicField | None = None,
 ) -> Plan:
     """Search a path from `start` to `goal` (poses of the rear axle's centre) on `cspace`.
 
@@ -178,7 +178,7 @@ def plan(
             return fail(f"the {name} pose {tuple(round(v, 3) for v in pose)} collides (or is off the map)")
     step = p.sample_step_m or 0.5 * res
     prims = primitives or build_primitives(p.turn_radius_m, p.arc_m, p.n_steer, step, reverse=p.reverse)
-    hf = field_ or HeuristicField(cspace, goal, p.turn_radius_m, p.rs_range_m)
+    hf = heuristic_field or HeuristicField(cspace, goal, p.turn_radius_m, p.rs_range_m)
     use_obstacle = heuristic in ("both", "obstacle")
     use_kinematic = heuristic in ("both", "kinematic")
     if use_obstacle and not math.isfinite(float(hf.obstacle(start[0], start[1]))):

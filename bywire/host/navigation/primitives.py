@@ -39,7 +39,6 @@ def _integrate(k0: float, k1: float, signed_arc_m: float, n: int, sub: int = 8) 
     x = y = th = 0.0
     steps = n * sub
     ds = signed_arc_m / steps
-    length = abs(signed_arc_m)
     for i in range(steps):
         frac = (i + 0.5) / steps
         k = k0 + (k1 - k0) * frac
@@ -49,7 +48,6 @@ def _integrate(k0: float, k1: float, signed_arc_m: float, n: int, sub: int = 8) 
         th += k * ds
         if (i + 1) % sub == 0:
             out[(i + 1) // sub - 1] = (x, y, th)
-    assert length > 0.0
     return out
 
 
