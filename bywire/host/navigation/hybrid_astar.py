@@ -18,7 +18,9 @@ metric is paid for once per expansion, not per successor).
 
 Analytic expansion: from every `shot_every`-th expansion within `shot_range_m` of the goal the shortest
 Reeds-Shepp path to the goal is checked against the table, and from every expansion within two turning
-radii the `shot_candidates` shortest; the first free one ends the search. `exhaustive=True` keeps
+radii the `shot_candidates` shortest; the first free one ends the search. This is the only way the
+search ends: a path ends exactly on the goal pose, never merely near it (a parking spot has no room for
+a tolerance, and the heuristics, which measure to the exact goal, stay admissible for what is searched). `exhaustive=True` keeps
 searching until no open node can beat the best complete
 path (the tests' reference optimum).
 """
@@ -53,8 +55,6 @@ class PlannerParams:
     direction_change_m: float = 3.0
     steer_change_weight: float = 0.5
     steer_weight: float = 0.05
-    goal_xy_m: float = 0.3
-    goal_heading_rad: float = 0.1
     shot_every: int = 3
     shot_range_m: float = 30.0
     shot_candidates: int = 4
@@ -248,15 +248,6 @@ def plan(
         if expansions > p.max_expansions:
             break
         dist = math.hypot(pose[0] - goal[0], pose[1] - goal[1])
-        # goal reached by the graph itself
-        if (
-            dist <= p.goal_xy_m
-            and abs(math.remainder(pose[2] - goal[2], 2.0 * math.pi)) <= p.goal_heading_rad
-        ):
-            if best is None or g < best[0]:
-                best = (g, nid, None)
-            if not exhaustive:
-                break
         near = dist < 2.0 * radius
         if dist <= p.shot_range_m and (exhaustive or near or expansions % p.shot_every == 1):
             shot = _shot(cspace, pose, goal, radius, step, p.shot_candidates if exhaustive or near else 1)

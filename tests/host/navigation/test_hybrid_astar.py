@@ -11,25 +11,13 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from planning_checks import assert_exactly_free
 
 from bywire.host.navigation.cspace import Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
 from bywire.host.navigation.heuristics import HeuristicField
-from bywire.host.navigation.hybrid_astar import Plan, PlannerParams, plan
+from bywire.host.navigation.hybrid_astar import PlannerParams, plan
 from bywire.host.navigation.reference_maps import autoware_lot
-
-
-def _exactly_free(plan_: Plan, grid: GridMap, fp: Footprint, margin: float) -> None:
-    corners = fp.corners(margin)
-    us = np.linspace(corners[:, 0].min(), corners[:, 0].max(), 40)
-    vs = np.linspace(corners[:, 1].min(), corners[:, 1].max(), 15)
-    uu, vv = (a.ravel() for a in np.meshgrid(us, vs))
-    for x, y, th in plan_.poses[::3]:
-        c, s = math.cos(th), math.sin(th)
-        px, py = x + c * uu - s * vv, y + s * uu + c * vv
-        assert not grid.occupied_at(px, py).any(), (
-            f"the car at ({x:.2f}, {y:.2f}, {th:.2f}) touches an obstacle"
-        )
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +44,7 @@ def test_autowares_parking_goals_are_reached_on_a_free_path(lot, goal: int) -> N
     )  # never tighter than the car turns
     assert set(np.unique(result.directions)) <= {-1.0, 1.0}
     assert result.length_m == pytest.approx(steps.sum())
-    _exactly_free(result, problem.grid, problem.footprint, 0.0)
+    assert_exactly_free(result.poses, problem.grid, problem.footprint, 0.0)
     assert set(result.summary()) >= {"found", "length_m", "direction_changes", "plan_ms", "expansions"}
 
 
