@@ -20,9 +20,9 @@ Analytic expansion: from every `shot_every`-th expansion within `shot_range_m` o
 Reeds-Shepp path to the goal is checked against the table, and from every expansion within two turning
 radii the `shot_candidates` shortest; the first free one ends the search. This is the only way the
 search ends: a path ends exactly on the goal pose, never merely near it (a parking spot has no room for
-a tolerance, and the heuristics, which measure to the exact goal, stay admissible for what is searched). `exhaustive=True` keeps
-searching until no open node can beat the best complete
-path (the tests' reference optimum).
+a tolerance, and the heuristics, which measure to the exact goal, stay admissible for what is searched).
+`exhaustive=True` keeps searching until no open node can beat the best complete path (the tests'
+reference optimum).
 """
 
 from __future__ import annotations

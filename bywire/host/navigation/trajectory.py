@@ -98,5 +98,5 @@ def speed_profile(
         t0 += float(t[-1])
     if not parts:
         raise ValueError("speed_profile: the path has no length")
-    cols = [np.concatenate([p[k] for p in parts]) for k in range(6)]
-    return ZoneTrajectory(*cols, duration_s=float(cols[0][-1]))
+    t, x, y, th, v, a = (np.concatenate([p[k] for p in parts]) for k in range(6))
+    return ZoneTrajectory(t, x, y, th, v, a, duration_s=float(t[-1]))
