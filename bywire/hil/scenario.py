@@ -401,6 +401,7 @@ URBAN_HAND_MADE = (
     "blocked_road_replan",
     "estop_in_intersection",
     "host_freeze_in_turn",
+    "zone_park_between_cars",
 )
 
 # The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run

@@ -25,9 +25,11 @@ plans multi-point turns in tight streets); this planner does not look at road ed
 Passing (`shifted_leg`, PassObstacle): the lane's own path shifted sideways by d(s), a quintic
 smoothstep d = D (10 u³ - 15 u⁴ + 6 u⁵) out and back (continuous curvature), D the lane spacing.
 
-Zone stand-in (`polyline_leg`, Zone): straight lines between given points, heading constant per line and
-curvature 0 (the controller takes the corners as they come). This is deliberately simple: a zone
-planner (seed 000 Sec. 10, hybrid A* on the obstacle map) will replace it.
+Planned path (`path_leg`, Zone): one stretch of the zone planner's path (`host.navigation`, Sec. 10:
+rear-axle poses driven in one direction), its curvature from the heading's change along it.
+
+Zone stand-in (`polyline_leg`, Zone, where the planner finds no path): straight lines between given
+points, heading constant per line and curvature 0 (the controller takes the corners as they come).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from .situation import Direction, PathStub, stub_from_arrays
 __all__ = [
     "Leg",
     "kturn_legs",
+    "path_leg",
     "polyline_leg",
     "quintic_step",
     "shifted_leg",
@@ -170,6 +173,21 @@ def kturn_legs(
         wy = y_m + s * lx + c * ly
         legs.append(_with_run_on(wx, wy, lh + heading_rad, lk, direction))
     return tuple(legs)
+
+
+def path_leg(x: FloatArray, y: FloatArray, heading: FloatArray, direction: Direction) -> Leg:
+    """A leg along planned rear-axle poses (driving order, body headings), resampled every ~SAMPLE_M."""
+    seg = np.hypot(np.diff(x), np.diff(y))
+    s = np.concatenate(([0.0], np.cumsum(seg)))
+    if s[-1] < 1e-3:
+        raise ValueError("path_leg: needs a path of some length")
+    h = np.unwrap(heading)
+    n = max(math.ceil(s[-1] / SAMPLE_M), 1) + 1
+    ss = np.linspace(0.0, float(s[-1]), n)
+    xs, ys, hs = np.interp(ss, s, x), np.interp(ss, s, y), np.interp(ss, s, h)
+    # steering curvature: forward dheading/ds, reversing -dheading/ds (see the docstring)
+    k = np.gradient(hs, ss) * (1.0 if direction == 1 else -1.0)
+    return _with_run_on(xs, ys, hs, k, direction)
 
 
 def polyline_leg(points: Sequence[tuple[float, float]], direction: Direction = 1) -> Leg:

@@ -118,6 +118,8 @@ __all__ = [
     "TIGHT_TURN_SPEED_MPS",
     "TRAFFIC_NEAR_M",
     "ZONE_APPROACH_TRIGGER_M",
+    "ZONE_BACK_OUT_MARGIN_M",
+    "ZONE_HANDOVER_M",
     "ZONE_NO_PROGRESS_S",
     "ZONE_PARK_DWELL_S",
     "ZONE_SPEED_MAX_MPS",
@@ -268,6 +270,12 @@ KTURN_SWITCH_DISTANCE_M: Final = 0.5  # ours: a leg of the K-turn ends within th
 # (ours: the orbital controller halves an error every 3 m, so 8 m takes out 85 % of a misalignment).
 ZONE_APPROACH_TRIGGER_M: Final = 30.0  # ours (AnnieWAY code: 10 m): time to slow down to zone speed
 ZONE_SPOT_ALIGN_M: Final = 8.0
+# ours: the zone planner takes over this far before the perimeter entry (an obstacle in the lot may stop
+# the car short of the perimeter on the route's straight zone edge, which the planner drives around)
+ZONE_HANDOVER_M: Final = 5.0
+# ours: out of a spot straight back until the front bumper is this far out of it (DARPA rules 5.2),
+# then the planner's path
+ZONE_BACK_OUT_MARGIN_M: Final = 1.0
 ZONE_PARK_DWELL_S: Final = 1.0  # ours: stand at the checkpoint in the spot, then back out
 CHECKPOINT_TOLERANCE_M: Final = 0.5  # ours: the front bumper "passes over" a checkpoint within this
 

@@ -66,6 +66,30 @@ class GridMap:
         out[ok] = self.occupied[row[ok], col[ok]]
         return out
 
+    def with_boxes(self, boxes: list[tuple[float, float, float, float, float]]) -> GridMap:
+        """This map with oriented boxes (centre x, centre y, heading, length, width) filled: a cell is
+        filled where any part of it is in a box."""
+        occ = self.occupied.copy()
+        rows, cols = self.shape
+        for bx, by, heading, length, width in boxes:
+            reach = 0.5 * math.hypot(length, width) + self.resolution_m
+            lo_r, lo_c = self.cell_of(bx - reach, by - reach)
+            hi_r, hi_c = self.cell_of(bx + reach, by + reach)
+            r0, r1 = max(int(lo_r), 0), min(int(hi_r) + 1, rows)
+            c0, c1 = max(int(lo_c), 0), min(int(hi_c) + 1, cols)
+            if r0 >= r1 or c0 >= c1:
+                continue
+            yy, xx = np.mgrid[r0:r1, c0:c1]
+            cx, cy = self.centre_of(yy, xx)
+            c, s = math.cos(heading), math.sin(heading)
+            along = (cx - bx) * c + (cy - by) * s
+            across = -(cx - bx) * s + (cy - by) * c
+            slack = 0.5 * self.resolution_m * (abs(c) + abs(s))
+            occ[r0:r1, c0:c1] |= (np.abs(along) <= 0.5 * length + slack) & (
+                np.abs(across) <= 0.5 * width + slack
+            )
+        return GridMap(occ, self.resolution_m, self.origin_xy_m)
+
     @classmethod
     def from_probabilities(
         cls,
@@ -88,18 +112,7 @@ class GridMap:
         """A map `size_m` (x, y) with oriented boxes (centre x, centre y, heading, length, width) filled."""
         cols = round(size_m[0] / resolution_m)
         rows = round(size_m[1] / resolution_m)
-        occ = np.zeros((rows, cols), dtype=bool)
-        grid = cls(occ, resolution_m, origin_xy_m)
-        yy, xx = np.mgrid[0:rows, 0:cols]
-        cx, cy = grid.centre_of(yy, xx)
-        for bx, by, heading, length, width in boxes:
-            c, s = math.cos(heading), math.sin(heading)
-            along = (cx - bx) * c + (cy - by) * s
-            across = -(cx - bx) * s + (cy - by) * c
-            # a cell is filled where any part of it is in the box (half a cell's diagonal of slack)
-            slack = 0.5 * resolution_m * (abs(c) + abs(s))
-            occ |= (np.abs(along) <= 0.5 * length + slack) & (np.abs(across) <= 0.5 * width + slack)
-        return grid
+        return cls(np.zeros((rows, cols), dtype=bool), resolution_m, origin_xy_m).with_boxes(boxes)
 
 
 def load(path: Path, resolution_m: float, origin_xy_m: tuple[float, float] = (0.0, 0.0)) -> GridMap:

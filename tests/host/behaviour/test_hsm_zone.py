@@ -1,6 +1,7 @@
-"""The Zone family (seed 000 Secs. 8, 10) with its stand-in straight-line navigation: approach, enter,
-pull into the spot to its checkpoint, back out, leave through the perimeter exit and on along the road;
-and the family's recovery escalating to the global one."""
+"""The Zone family (seed 000 Secs. 8, 10) on the zone planner's paths: approach, enter, pull into the
+spot to its checkpoint, back straight out of it (DARPA rules 5.2), on through the perimeter exit and
+along the road; the stand-in's straight lines where the planner finds no way; and the family's
+recovery escalating to the global one."""
 
 from __future__ import annotations
 
@@ -47,15 +48,16 @@ def test_zone_enter_park_leave(lot) -> None:  # type: ignore[no-untyped-def]
     leave = [f for f in sim.frames if f.state == "Zone/ZoneLeave"]
     assert leave[0].command.direction == -1 and min(f.speed_mps for f in leave) < -0.5
     assert leave[-1].command.direction == 1
-    assert min(f.x_m for f in leave if f.command.direction == -1) == pytest.approx(
-        140.0 - rules.ZONE_SPOT_ALIGN_M, abs=1.0
-    )
+    # straight back until the front bumper is out of the spot (140 .. 145.5) by the margin
+    backed = [f for f in leave if f.command.direction == -1]
+    assert min(f.x_m for f in backed) == pytest.approx(140.0 - rules.ZONE_BACK_OUT_MARGIN_M - FRONT, abs=0.5)
+    assert max(abs(f.y_m) for f in backed) < 0.2
     # zone speed: the MDF's 5 mph at most (and half of it in the spot)
     assert max(abs(f.speed_mps) for f in sim.frames if f.state.startswith("Zone/Zone") and f.x_m > 110.0) <= (
         5 * rules.MPH_MPS + 0.05
     )
-    # the stand-in says what it is
-    assert "stand-in" in next(f for f in sim.frames if f.state == "Zone/ZoneEnter").command.reason
+    # the planner's path, and it says so
+    assert "planned path" in next(f for f in sim.frames if f.state == "Zone/ZoneEnter").command.reason
     # and the road afterwards is driven west to the final checkpoint (3.1.3 at x = 0)
     last = sim.frames[-1]
     assert last.x_m - FRONT == pytest.approx(

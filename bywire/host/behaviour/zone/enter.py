@@ -1,6 +1,6 @@
 """ZoneEnter (seed 000 Secs. 8, 10): to the next target, a spot's alignment point and entry, or the exit.
 
-On entry the navigator's forward leg to the target is begun; ZonePark once the front bumper is at the
+On entry the navigator's legs to the target are begun; ZonePark once the front bumper is at the
 spot.
 """
 
@@ -14,16 +14,16 @@ __all__ = ["zone_enter_state"]
 
 
 def _enter_entry(ctx: BehaviourContext) -> None:
-    ego = ctx.situation.ego
-    leg = navigator(ctx).forward_leg(ego.x_m, ego.y_m)
-    if leg is not None:
-        ctx.begin_legs((leg,))
+    legs = navigator(ctx).legs_to_target(ctx)
+    if legs:
+        ctx.begin_legs(legs)
 
 
 def _enter_activity(ctx: BehaviourContext) -> None:
     target = navigator(ctx).target
     what = "the exit" if target is None or target.kind == "exit" else f"spot {target.point.lane_id}"
-    ctx.say(f"zone: driving to {what} (stand-in straight lines)")
+    how = "planned path" if navigator(ctx).planned else "stand-in straight lines"
+    ctx.say(f"zone: driving to {what} ({how})")
 
 
 def zone_enter_state() -> State[BehaviourContext]:

@@ -2,7 +2,8 @@
 the substates.
 
 On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
-followed at the zone speed. The family leaves to Drive once the rear axle is past the perimeter exit
+followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) at
+spot speed, and the next one begun. The family leaves to Drive once the rear axle is past the perimeter exit
 (route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
 """
 
@@ -43,12 +44,22 @@ def _left_zone(ctx: BehaviourContext) -> bool:
     return (
         target is not None
         and target.kind == "exit"
+        and nav.on_final_leg(ctx)
         and ctx.legs[ctx.leg_index].direction == 1
         and ctx.leg_s_m >= nav.exit_s_m
     )
 
 
 def _follow(ctx: BehaviourContext) -> None:
+    nav = ctx.manoeuvre_data.get("zone")
+    if ctx.legs and isinstance(nav, ZoneNavigator) and nav.planned and ctx.leg_index < nav.final_leg:
+        # a planned leg before the last ends in a stop (a cusp: the gear changes), then the next begins
+        leg = ctx.legs[ctx.leg_index]
+        if ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped:
+            ctx.select_leg(ctx.leg_index + 1)
+        else:
+            ctx.stop_rear_at(leg.end_s_m, "zone: end of a planned leg")
+            ctx.cap(rules.SPOT_SPEED_MPS, "zone: manoeuvring")
     if ctx.legs:
         ctx.plan.leg = ctx.legs[ctx.leg_index]
         ctx.plan.leg_s_m = ctx.leg_s_m
@@ -59,7 +70,7 @@ def _follow(ctx: BehaviourContext) -> None:
 def zone_family() -> State[BehaviourContext]:
     return State(
         "Zone",
-        doc="zones and parking (Sec. 10; stand-in straight-line navigation)",
+        doc="zones and parking (Sec. 10: hybrid A* on the zone's obstacle map)",
         initial="ZoneApproach",
         entry=_enter,
         exit=_exit,

@@ -1,5 +1,6 @@
-"""ZoneLeave (seed 000 Secs. 8, 10; DARPA rules 5.2 "and reverse out of"): reverse out of the spot to its
-alignment point, then on to the next target (ZonePark at the next spot).
+"""ZoneLeave (seed 000 Secs. 8, 10; DARPA rules 5.2 "and reverse out of"): the planner's legs out of the
+spot and on to the next target (ZonePark at the next spot); with the stand-in, reverse out to the
+spot's alignment point, then on.
 """
 
 from __future__ import annotations
@@ -13,14 +14,20 @@ __all__ = ["zone_leave_state"]
 
 
 def _leave_entry(ctx: BehaviourContext) -> None:
-    ego = ctx.situation.ego
-    leg = navigator(ctx).back_out_leg(ego.x_m, ego.y_m)
-    if leg is not None:
-        ctx.begin_legs((leg,))
+    legs = navigator(ctx).legs_to_target(ctx)
+    if legs:
+        ctx.begin_legs(legs)
 
 
 def _leave_activity(ctx: BehaviourContext) -> None:
     nav = navigator(ctx)
+    if nav.planned:  # the planner's legs reverse out and go on; the Zone family drives them
+        target = nav.target
+        ctx.say(
+            "zone: out of the spot, to "
+            + ("the exit" if target is None or target.kind == "exit" else "the next spot")
+        )
+        return
     if ctx.legs and ctx.legs[ctx.leg_index].direction == -1:
         leg = ctx.legs[ctx.leg_index]
         done = ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped

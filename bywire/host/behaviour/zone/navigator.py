@@ -1,5 +1,8 @@
-"""The zone navigation's stand-in (seed 000 Sec. 10 until its hybrid A*): `ZoneNavigator`, and what the
-Zone states read of it.
+"""The zone navigation (seed 000 Sec. 10): `ZoneNavigator`, and what the Zone states read of it.
+
+To each target the zone planner's legs (`planning`, hybrid A* on the zone's obstacle map): into a spot
+with the front bumper on its checkpoint, out of it and on to the next, to the perimeter exit and on
+along the exit edge. Where the planner finds no path, the stand-in of before it:
 
 Straight lines (`manoeuvre.polyline_leg`) from where we are to a point `ZONE_SPOT_ALIGN_M` before the
 spot on its axis, into the spot to its checkpoint, back out along the axis to that point, and from there
@@ -22,6 +25,7 @@ from bywire.host.roadnet.ids import WaypointId
 from .. import rules
 from ..context import BehaviourContext
 from ..manoeuvre import Leg, polyline_leg
+from .planning import PlannedLegs, goal_in_spot, plan_legs
 
 __all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "zone_speed"]
 
@@ -58,6 +62,10 @@ class ZoneNavigator:
             exit_edge = edges[piece.last + 1] if piece.last + 1 < len(edges) else None
             targets.append(ZoneTarget("exit", last.end, None, exit_edge, piece.end_s_m))
         self.targets = tuple(targets)
+        self.zone_id = edges[piece.first].start.segment  # the piece starts on the zone's perimeter
+        self.planned = False  # the legs being driven are the planner's (else the stand-in's)
+        self.final_leg = 0  # the leg that reaches the target
+        self.last_plan: PlannedLegs | str | None = None
         self.index = 0
         self.parked_since_s: float | None = None
         self.wp1_s_m = math.inf  # on the current forward leg
@@ -107,6 +115,66 @@ class ZoneNavigator:
             self.wp1_s_m = self.wp2_s_m = math.inf
         return leg
 
+    def legs_to_target(self, ctx: BehaviourContext) -> tuple[Leg, ...]:
+        """The zone planner's legs from our pose to the current target: into a spot, front bumper at its
+        checkpoint, or to the perimeter exit and on along the exit edge. Where it finds none, the stand-in's
+        straight lines (reversing out of the spot just left first), and the reason is said."""
+        target = self.target
+        if target is None:
+            return ()
+        ego = ctx.situation.ego
+        then = None
+        if target.kind == "spot":
+            assert target.spot_end is not None
+            goal = goal_in_spot(ctx, target.point, target.spot_end)
+        else:
+            px, py = self._xy(target.point)
+            heading = math.atan2(py - ego.y_m, px - ego.x_m)
+            if target.exit_edge is not None and len(target.exit_edge.path) > 1:
+                p = target.exit_edge.path
+                heading = float(p.heading_rad[0])
+                s = np.arange(0.0, p.length_m, _EXIT_SAMPLE_M)
+                ex, ey, eh, _ = p.sample(np.append(s, p.length_m))
+                then = (ex, ey, eh)
+            goal = (px, py, heading)
+        back_out = 0.0
+        if self.index > 0 and self.targets[self.index - 1].kind == "spot":
+            left = self.targets[self.index - 1]
+            assert left.spot_end is not None
+            (x1, y1), (x2, y2) = self._xy(left.point), self._xy(left.spot_end)
+            back_out = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of the spot
+        planned = plan_legs(ctx, self.zone_id, goal, then, back_out)
+        self.last_plan = planned
+        if isinstance(planned, str):
+            self.planned = False
+            ctx.say(planned)
+            back = self.back_out_leg(ego.x_m, ego.y_m)
+            if back is not None:
+                self.final_leg = 1
+                forward = self.forward_leg(*back.point_at(back.end_s_m)[:2])
+                return (back,) if forward is None else (back, forward)
+            forward = self.forward_leg(ego.x_m, ego.y_m)
+            self.final_leg = 0
+            return () if forward is None else (forward,)
+        self.planned = True
+        legs = planned.legs
+        self.final_leg = len(legs) - 1
+        final = legs[-1]
+        if target.kind == "spot":
+            assert target.spot_end is not None
+            x1, y1 = self._xy(target.point)
+            self.wp1_s_m = final.locate_anywhere(x1, y1)
+            self.wp2_s_m = final.end_s_m + ctx.params.rear_axle_to_front_m
+            self.exit_s_m = math.inf
+        else:
+            px, py = self._xy(target.point)
+            self.exit_s_m = final.locate_anywhere(px, py)
+            self.wp1_s_m = self.wp2_s_m = math.inf
+        return legs
+
+    def on_final_leg(self, ctx: BehaviourContext) -> bool:
+        return bool(ctx.legs) and ctx.leg_index >= min(self.final_leg, len(ctx.legs) - 1)
+
     def back_out_leg(self, x_m: float, y_m: float) -> Leg | None:
         """Reverse from (x, y) to the alignment point of the spot just left (the previous target)."""
         if self.index == 0 or self.targets[self.index - 1].kind != "spot":
@@ -137,6 +205,7 @@ def front_in_spot(ctx: BehaviourContext) -> bool:
         target is not None
         and target.kind == "spot"
         and bool(ctx.legs)
+        and nav.on_final_leg(ctx)
         and ctx.legs[ctx.leg_index].direction == 1
         and ctx.leg_s_m + ctx.params.rear_axle_to_front_m >= nav.wp1_s_m
     )
