@@ -66,7 +66,6 @@ SPEED_EPISODE_S = 0.5  # a speed-limit violation lasts at least this long
 FOLLOW_HEADWAY_S = 1.2
 FOLLOW_STANDSTILL_M = 4.0
 SENSE_M = 60.0
-EXACT_SEPARATION_M = 12.0  # box-to-box distances are computed exactly below this centre distance
 
 
 def load_network(rndf: str, mdf: str) -> tuple[RoadGraph, ResolvedMission]:
@@ -521,19 +520,15 @@ class UrbanWorld:
             ni, xi, yi, bi = boxes[i]
             for j in range(i + 1, len(boxes)):
                 nj, xj, yj, bj = boxes[j]
-                centre = math.hypot(xi - xj, yi - yj)
-                if centre > EXACT_SEPARATION_M:
-                    # far apart: the centre distance less both half diagonals is a lower bound
-                    bound = centre - 0.5 * (diag[i] + diag[j])
-                    if i == 0 and bound < self.min_separation_m:
-                        self.min_separation_m, self.min_separation_to = bound, nj
-                    continue
-                if i == 0:
+                # the centre distance less both half diagonals bounds the box distance from below: where
+                # it cannot touch, or cannot beat the smallest separation so far, nothing exact is needed
+                bound = math.hypot(xi - xj, yi - yj) - 0.5 * (diag[i] + diag[j])
+                if i == 0 and (bound <= 0.0 or bound < self.min_separation_m):
                     d = box_distance(bi, bj)
                     if d < self.min_separation_m:
                         self.min_separation_m, self.min_separation_to = d, nj
                     touching = d <= 0.0
-                elif centre < 8.0:
+                elif i != 0 and bound <= 0.0:
                     touching = boxes_overlap(bi, bj)
                 else:
                     touching = False

@@ -154,3 +154,19 @@ def test_precedence_known_answers() -> None:
     assert [v["before"] for v in precedence_violations(arr)] == ["stuck"]
     # another intersection is not ours
     assert precedence_violations([_arr("a", 1.0, 9.0, inter=1), _arr("ego", 4.0, 6.0)]) == []
+
+
+def test_the_smallest_separation_is_a_distance_not_a_bound() -> None:
+    """Our car just past the end of a 20 m wall: the separation booked is the boxes' real distance,
+    never the centre distance less both half diagonals (a bound that, for a long object, lies far below
+    the distance, and goes negative: an overlap that never happened)."""
+    sc = load_scenario("zone_park_between_cars")
+    assert sc.urban is not None
+    w = UrbanWorld(sc.urban)
+    w.step(0.0, 91.5, -5.0, 0.0, 0.0, 0.0)  # rear axle at (31.5, -5): the wall runs x 10..30 at y = -8
+    assert w.collisions == []
+    cx, cy = w.ego_centre()
+    ours = box(cx, cy, w.ego[2], sc.urban.ego_length_m, sc.urban.ego_width_m)
+    exact = min(box_distance(ours, box(c.x_m, c.y_m, c.heading_rad, c.length_m, c.width_m)) for c in w.cars)
+    assert w.min_separation_m == pytest.approx(exact, abs=1e-9)
+    assert w.min_separation_to == "wall" and 1.5 < exact < 2.5
