@@ -150,6 +150,8 @@ class Situation:
     blocked: tuple[BlockedRoad, ...] = ()
     estop: EStop = EStop.RUN
     progress: RouteProgress | None = None
+    # the perception's obstacle cells (k x 3: centre x, y and size, metres), where it has a grid (LIDAR)
+    obstacle_cells: np.ndarray | None = field(default=None, compare=False)
 
     def validate(self) -> None:
         """ValueError naming the field of the first bad value (non-finite, negative size, ...)."""

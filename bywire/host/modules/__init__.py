@@ -449,7 +449,7 @@ KINDS: dict[str, ModuleKind] = {
         ModuleKind(
             "lidar_perception",
             (pm.PERCEPTION_SCAN, u.URBAN_POSE),
-            (u.URBAN_OBJECTS, pm.PERCEPTION_STATUS),
+            (u.URBAN_OBJECTS, pm.PERCEPTION_STATUS, pm.PERCEPTION_OBSTACLES),
             0.05,
             0.045,
             _lidar_perception,
@@ -468,7 +468,7 @@ KINDS: dict[str, ModuleKind] = {
         ),
         ModuleKind(
             "urban_behaviour",
-            (u.URBAN_POSE, u.URBAN_OBJECTS, m.ECU_STATUS, pm.LANE_OFFSET),
+            (u.URBAN_POSE, u.URBAN_OBJECTS, m.ECU_STATUS, pm.LANE_OFFSET, pm.PERCEPTION_OBSTACLES),
             (u.URBAN_PLAN,),
             0.05,
             0.045,

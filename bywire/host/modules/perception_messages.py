@@ -16,6 +16,7 @@ from bywire.host.runtime.log_schema import register_type
 
 PERCEPTION_SCAN = "/perception/scan"
 PERCEPTION_STATUS = "/perception/status"
+PERCEPTION_OBSTACLES = "/perception/obstacles"
 LANE_OFFSET = "/urban/lane_offset"
 
 
@@ -52,6 +53,21 @@ class PerceptionStatus:
     tracks: int
     published: int
     moving: int
+
+
+@register_type
+@dataclass(frozen=True)
+class ObstacleCells:
+    """The occupancy grid's obstacle cells of one perception frame (seed 000 Sec. 4, eqs. 1-5): each cell's
+    centre in the position fix's frame and its size, metres. What the zone planner's map is built from
+    on LIDAR (seed 000 Sec. 10.1: "an obstacle map obtained from a 360-deg laser range scanner"): a wall,
+    and the whole outline of a car seen from one side, which no track's box holds."""
+
+    t_s: float
+    valid: bool
+    stamp_s: float
+    xy_m: np.ndarray = field(compare=False)  # (k, 2) float32
+    size_m: np.ndarray = field(compare=False)  # (k,) float32
 
 
 @register_type

@@ -16,7 +16,12 @@ from bywire.hil.scenario import load_scenario
 from bywire.hil.world.urban import UrbanWorld
 from bywire.host.modules.estimation.lane_offset import LaneOffsetModule
 from bywire.host.modules.estimation.lidar_perception import LidarPerception
-from bywire.host.modules.perception_messages import LANE_OFFSET, PERCEPTION_SCAN, PerceptionScan
+from bywire.host.modules.perception_messages import (
+    LANE_OFFSET,
+    PERCEPTION_OBSTACLES,
+    PERCEPTION_SCAN,
+    PerceptionScan,
+)
 from bywire.host.modules.urban_messages import URBAN_OBJECTS, URBAN_POSE, UrbanPose
 from bywire.host.perception.scan import Scan
 from bywire.host.roadnet.lane_index import LaneIndex
@@ -52,6 +57,14 @@ def test_the_perception_finds_the_waiting_cars_where_they_stand() -> None:
         d = min(math.hypot(o.x_m - c.x_m, o.y_m - c.y_m) for o in objs.objects)
         assert d < MATCH_M, (c.name, d, objs.objects)
     assert all(o.object_id.startswith("t") and o.speed_mps == 0.0 for o in objs.objects)
+    # the grid's obstacle cells go out too (the zone planner's map): some on every car, in the host's frame
+    cells = h_mod.latest(PERCEPTION_OBSTACLES)
+    assert cells.valid and cells.stamp_s == 0.5 and cells.xy_m.shape == (cells.size_m.shape[0], 2)
+    for c in cars:
+        near = np.hypot(cells.xy_m[:, 0] - c.x_m, cells.xy_m[:, 1] - c.y_m) < 0.5 * math.hypot(
+            c.length_m, c.width_m
+        )
+        assert near.sum() >= 3, c.name
 
 
 def test_the_lane_offset_finds_a_map_that_is_off_by_a_translation() -> None:

@@ -4,8 +4,10 @@ the navigation module described in Section 10"), `host.navigation`'s hybrid A*.
 The obstacle map of a zone (`zone_map`): a grid of `ZONE_CELL_M` over the perimeter's bounding box and
 `MAP_PAD_M` around it; outside the perimeter polygon is an obstacle (the car stays in the zone), except
 within `GATE_OPEN_M` of the perimeter points where lanes enter and leave (the car's tail is still on the
-road at the entry, its nose already on it at the exit); every object of the world model is a box on it
-(parked cars, a wall: on perfect perception the simulator's objects, on LIDAR the tracks).
+road at the entry, its nose already on it at the exit); every standing object of the world model is a
+box on it (parked cars, a wall: on perfect perception the simulator's objects, on LIDAR the tracks), and
+on LIDAR every obstacle cell of the perception's occupancy grid is too (the wall no track holds, the
+whole seen outline of a parked car). Our own place is never an obstacle.
 
 `plan_legs` plans from our rear-axle pose to a goal pose on that map (margin `ZONE_MARGIN_M`, tried
 again at `ZONE_MARGIN_TIGHT_M` when our own pose is inside the wider one, as between two parked cars),
@@ -97,7 +99,38 @@ def zone_map(ctx: BehaviourContext, zone_id: int) -> GridMap:
         for o in ctx.situation.objects
         if abs(o.speed_mps) < 1.0  # what stands is the map; what moves is the tracker's business
     ]
-    return GridMap(blocked, ZONE_CELL_M, grid.origin_xy_m).with_boxes(boxes)
+    cells = ctx.situation.obstacle_cells
+    if cells is not None and len(cells):
+        # the perception grid's obstacle cells, each a square of its size (LIDAR: the wall, the whole
+        # seen outline of a parked car); boxes of the same cells' tracks add nothing but do no harm
+        boxes += [
+            (float(cx), float(cy), 0.0, float(sz), float(sz)) for cx, cy, sz in cells if _near(grid, cx, cy)
+        ]
+    out = GridMap(blocked, ZONE_CELL_M, grid.origin_xy_m).with_boxes(boxes)
+    # our own place is no obstacle (a stray return under the car, a track of our own shadow)
+    ego = ctx.situation.ego
+    own = GridMap(np.zeros_like(out.occupied), ZONE_CELL_M, out.origin_xy_m).with_boxes(
+        [_own_box(ctx, ego.x_m, ego.y_m, ego.heading_rad)]
+    )
+    return GridMap(out.occupied & ~own.occupied | (blocked & own.occupied), ZONE_CELL_M, out.origin_xy_m)
+
+
+def _near(grid: GridMap, x: float, y: float) -> bool:
+    w, h = grid.size_m
+    ox, oy = grid.origin_xy_m
+    return ox <= x <= ox + w and oy <= y <= oy + h
+
+
+def _own_box(
+    ctx: BehaviourContext, x: float, y: float, heading: float
+) -> tuple[float, float, float, float, float]:
+    """Our car's box (rear axle pose), grown by the planner's tight margin."""
+    front = ctx.params.rear_axle_to_front_m
+    rear = PASSAT_LENGTH_M - front
+    shift = 0.5 * (front - rear)
+    grow = 2.0 * ZONE_MARGIN_TIGHT_M
+    return (x + shift * math.cos(heading), y + shift * math.sin(heading), heading, PASSAT_LENGTH_M + grow,
+            PASSAT_WIDTH_M + grow)  # fmt: skip
 
 
 def goal_in_spot(ctx: BehaviourContext, first: WaypointId, checkpoint: WaypointId) -> Pose:

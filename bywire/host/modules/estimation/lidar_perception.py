@@ -1,7 +1,8 @@
 """The urban host's LIDAR perception (seed 000 sections 4-5) as a module: each new revolution into the
 occupancy grid at the sensor's pose, the grid's obstacle cells segmented into objects, the objects that
 have a road user's shape tracked, and the published tracks out as the object list the behaviour reads
-(`/urban/objects`, the same topic and type the perfect object link fills).
+(`/urban/objects`, the same topic and type the perfect object link fills); the grid's obstacle cells go
+out too (`/perception/obstacles`: the zone planner's map).
 
 The sensor's pose is the rear axle's (the pose link's) moved to the scan's stamp with its speed and yaw
 rate, then forward by the roof mount (`sensor_forward_m`); the revolution itself is taken as seen from
@@ -20,9 +21,13 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from bywire.host.modules.perception_messages import (
+    PERCEPTION_OBSTACLES,
     PERCEPTION_SCAN,
     PERCEPTION_STATUS,
+    ObstacleCells,
     PerceptionScan,
     PerceptionStatus,
 )
@@ -81,6 +86,7 @@ class LidarPerception(Module):
         self._headings: dict[int, float] = {}
         self._objects: UrbanObjects | None = None
         self._status: PerceptionStatus | None = None
+        self._cells: ObstacleCells | None = None
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -97,6 +103,11 @@ class LidarPerception(Module):
             self._frame(now, scan, pose)
         objects = self._objects or UrbanObjects(now, False, math.nan, ())
         ctx.publish(URBAN_OBJECTS, UrbanObjects(now, objects.valid, objects.stamp_s, objects.objects))
+        cells, self._cells = self._cells, None
+        if cells is not None:  # once per frame: a few thousand cells, recorded
+            ctx.publish(
+                PERCEPTION_OBSTACLES, ObstacleCells(now, True, cells.stamp_s, cells.xy_m, cells.size_m)
+            )
         status = self._status or PerceptionStatus(now, False, math.nan, 0, 0, 0, 0, 0, 0)
         ctx.publish(
             PERCEPTION_STATUS,
@@ -109,6 +120,9 @@ class LidarPerception(Module):
         scan = scan_of(msg)
         self.grid.update(scan, sensor_pose(pose, msg.stamp_s, self.forward_m))
         seg = segment(self.grid.snapshot(), self.segmentation)
+        self._cells = ObstacleCells(
+            now, True, msg.stamp_s, seg.cells.xy_m.astype(np.float32), seg.cells.size_m.astype(np.float32)
+        )
         found = [o for o in seg.objects if self.shape.accepts(o)]
         detections = [Detection(o.x_m, o.y_m, o.length_m, o.width_m, o.yaw_rad) for o in found]
         tracks = self.tracker.update(detections, msg.stamp_s)

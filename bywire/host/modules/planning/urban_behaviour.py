@@ -15,13 +15,20 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
+
 from bywire.host.behaviour.behaviour import Behaviour
 from bywire.host.behaviour.situation import EgoState, EStop, Situation, TrackedObject, match_objects
 from bywire.host.modules.messages import (
     ECU_STATUS,
     EcuStatusReport,
 )
-from bywire.host.modules.perception_messages import LANE_OFFSET, LaneOffsetEstimate
+from bywire.host.modules.perception_messages import (
+    LANE_OFFSET,
+    PERCEPTION_OBSTACLES,
+    LaneOffsetEstimate,
+    ObstacleCells,
+)
 from bywire.host.modules.urban_log import UrbanLog
 from bywire.host.modules.urban_messages import (
     URBAN_OBJECTS,
@@ -114,6 +121,7 @@ class UrbanBehaviour(Module):
         objs: UrbanObjects | None = ctx.latest(URBAN_OBJECTS)
         status: EcuStatusReport | None = ctx.latest(ECU_STATUS)
         offset: LaneOffsetEstimate | None = ctx.latest(LANE_OFFSET)
+        cells_msg: ObstacleCells | None = ctx.latest(PERCEPTION_OBSTACLES)
         if objs is not None and objs.valid:
             self.log.perceive(objs.stamp_s, tuple((o.object_id, o.x_m, o.y_m) for o in objs.objects))
         if offset is not None and offset.valid:
@@ -124,11 +132,17 @@ class UrbanBehaviour(Module):
             return
         x, y, h = extrapolate(pose, now - pose.t_s)
         objects = tuple(self._matched(o) for o in (objs.objects if objs is not None and objs.valid else ()))
+        cells = None
+        if cells_msg is not None and cells_msg.valid:
+            east, north = offset.correction() if offset is not None else (0.0, 0.0)
+            xy = np.asarray(cells_msg.xy_m, dtype=np.float64) - np.array([east, north])
+            cells = np.column_stack((xy, np.asarray(cells_msg.size_m, dtype=np.float64)))
         sit = Situation(
             t_s=now,
             ego=EgoState(x, y, math.atan2(math.sin(h), math.cos(h)), pose.speed_mps),
             objects=objects,
             estop=estop_of(status),
+            obstacle_cells=cells,
         )
         cmd = self.behaviour.step(sit)
         if cmd.state != self._last_state:
