@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hsm_sim import Script, Sim, zone_network
 
@@ -84,3 +85,26 @@ def test_zone_recovery_then_global_recovery() -> None:
     assert (
         back.state == "Zone/ZoneEnter" and back.transitions[0] == "GlobalRecovery -> Drive (back on a route)"
     )
+
+
+def test_a_car_that_stops_on_the_planned_path_is_planned_around() -> None:
+    """After the plan into the spot is made, a car comes from the side and stops across it, 10 m ahead
+    of us (on LIDAR: a part of a parked car seen only now). We stop behind it, and after
+    ZONE_REPLAN_STALL_S the planner finds the way round it, on the map that now holds it: into the spot
+    all the same, touching nothing."""
+    from hsm_sim import ScriptedCar
+
+    from bywire.host.roadnet.path import Path
+
+    ys = np.linspace(20.0, -20.0, 81)
+    crossing = Path(np.full_like(ys, 125.0), ys, np.full_like(ys, -math.pi / 2), np.zeros_like(ys))
+    # it waits 20 m north of our way, drives south at 3 m/s once we have planned (18.5 s), and stops
+    # across our way about 5 m before our front bumper
+    car = ScriptedCar("crosser", crossing, 0.0, lambda t, s: 0.0 if t < 18.5 or s >= 20.0 else 3.0)
+    sim = Sim(zone_network(), cars=[car])
+    assert sim.run_until(lambda s: s.state == "MissionComplete", 260.0), sim.leaves()
+    assert sim.collisions == [] and sim.faults == []
+    reasons = [f.command.reason for f in sim.frames if f.state.startswith("Zone/")]
+    assert any("replanned" in r for r in reasons)
+    assert "ZoneRecovery" not in sim.leaves()
+    assert sim.frames[-1].command.checkpoints_reached == (1, 2, 3)

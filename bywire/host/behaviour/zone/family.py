@@ -3,8 +3,10 @@ the substates.
 
 On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
 followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) at
-spot speed, and the next one begun. The family leaves to Drive once the rear axle is past the perimeter exit
-(route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
+spot speed, and the next one begun; stopped short of a planned leg's end for `ZONE_REPLAN_STALL_S`, the
+way to the target is planned again from where we stand (seed 000 Sec. 10's replanning). The family
+leaves to Drive once the rear axle is past the perimeter exit (route tracking resumes there) and to
+ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
 """
 
 from __future__ import annotations
@@ -60,11 +62,34 @@ def _follow(ctx: BehaviourContext) -> None:
         else:
             ctx.stop_rear_at(leg.end_s_m, "zone: end of a planned leg")
             ctx.cap(rules.SPOT_SPEED_MPS, "zone: manoeuvring")
+    if ctx.legs and isinstance(nav, ZoneNavigator) and nav.planned:
+        _replan_when_stalled(ctx, nav)
     if ctx.legs:
         ctx.plan.leg = ctx.legs[ctx.leg_index]
         ctx.plan.leg_s_m = ctx.leg_s_m
         ctx.plan.profile = False
     ctx.cap(zone_speed(ctx), "zone speed")
+
+
+def _replan_when_stalled(ctx: BehaviourContext, nav: ZoneNavigator) -> None:
+    """Stopped short of a planned leg's end for `ZONE_REPLAN_STALL_S` (something stands on the path that
+    was not on the map it was planned on: on LIDAR, a part of a parked car seen only now): plan again
+    from here to the same target, on today's map."""
+    leg = ctx.legs[ctx.leg_index]
+    short = ctx.leg_s_m < leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M
+    if not (ctx.stopped and short) or nav.target is None:
+        nav.stalled_since_s = None
+        return
+    if nav.stalled_since_s is None:
+        nav.stalled_since_s = ctx.t_s
+        return
+    if ctx.t_s - nav.stalled_since_s < rules.ZONE_REPLAN_STALL_S:
+        return
+    nav.stalled_since_s = None
+    legs = nav.legs_to_target(ctx, back_out=False)
+    if legs and nav.planned:
+        ctx.begin_legs(legs)
+        ctx.say("zone: replanned around what stands on the path")
 
 
 def zone_family() -> State[BehaviourContext]:

@@ -66,6 +66,7 @@ class ZoneNavigator:
         self.planned = False  # the legs being driven are the planner's (else the stand-in's)
         self.final_leg = 0  # the leg that reaches the target
         self.last_plan: PlannedLegs | str | None = None
+        self.stalled_since_s: float | None = None  # stopped short of a planned leg's end since
         self.index = 0
         self.parked_since_s: float | None = None
         self.wp1_s_m = math.inf  # on the current forward leg
@@ -115,7 +116,7 @@ class ZoneNavigator:
             self.wp1_s_m = self.wp2_s_m = math.inf
         return leg
 
-    def legs_to_target(self, ctx: BehaviourContext) -> tuple[Leg, ...]:
+    def legs_to_target(self, ctx: BehaviourContext, back_out: bool = True) -> tuple[Leg, ...]:
         """The zone planner's legs from our pose to the current target: into a spot, front bumper at its
         checkpoint, or to the perimeter exit and on along the exit edge. Where it finds none, the stand-in's
         straight lines (reversing out of the spot just left first), and the reason is said."""
@@ -137,15 +138,20 @@ class ZoneNavigator:
                 ex, ey, eh, _ = p.sample(np.append(s, p.length_m))
                 then = (ex, ey, eh)
             goal = (px, py, heading)
-        back_out = 0.0
-        if self.index > 0 and self.targets[self.index - 1].kind == "spot":
+        back_out_m = 0.0
+        if back_out and self.index > 0 and self.targets[self.index - 1].kind == "spot":
             left = self.targets[self.index - 1]
             assert left.spot_end is not None
             (x1, y1), (x2, y2) = self._xy(left.point), self._xy(left.spot_end)
-            back_out = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of the spot
-        planned = plan_legs(ctx, self.zone_id, goal, then, back_out)
+            back_out_m = (
+                math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M
+            )  # front clear of the spot
+        planned = plan_legs(ctx, self.zone_id, goal, then, back_out_m)
         self.last_plan = planned
         if isinstance(planned, str):
+            if not back_out and self.planned:
+                ctx.say(planned)
+                return ()  # a replan that finds nothing keeps the legs being driven
             self.planned = False
             ctx.say(planned)
             back = self.back_out_leg(ego.x_m, ego.y_m)
