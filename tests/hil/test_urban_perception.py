@@ -1,10 +1,11 @@
 """The urban host on its own perception (seed 000 sections 4-6) in SIL: the plant casts the simulated
 Velodyne's revolutions, the host's grid, segmentation and tracker make the object list the behaviour
-drives on, and the lane markings put the car on a map that is off by 1.5 m.
+drives on, the lane markings put the car on a map that is off by 1.5 m, and the grid's obstacle cells
+are the zone planner's map.
 
 Every shipped urban scenario with LIDAR perception is the `-m slow` campaign (`test_every_urban_scenario_
 passes_on_lidar`, about 40 s of CPU each); the default run has a four-way stop with waiting cars, the
-parked car, and `rndf_offset` both ways."""
+parking lot, and `rndf_offset` both ways."""
 
 from __future__ import annotations
 
@@ -123,6 +124,16 @@ def test_rndf_offset_passes_with_the_lane_markings_and_fails_on_the_map_alone() 
     names = {c["name"] for c in failed(perfect)}
     assert "in the real lane (RMS)" in names and "the map's offset found" in names
     assert perfect["metrics"]["lateral_error_rms_m"] > 1.0
+
+
+def test_the_parking_lot_is_planned_on_the_lidars_occupancy_grid() -> None:
+    """The zone planner's map from the perception's obstacle cells and tracks: past the car parked across
+    the way, into the spot between two parked cars, out by the exit, touching nothing."""
+    doc = run("zone_park_between_cars", "lidar")
+    assert doc["verdict"] == "pass", failed(doc)
+    m = doc["metrics"]
+    assert m["collisions"] == 0 and m["min_separation_m"] >= 0.3 and m["mission_complete"]
+    assert not {"ZoneRecovery", "GlobalRecovery"} & {s.rsplit("/", 1)[-1] for _, s in doc["state_history"]}
 
 
 @pytest.mark.slow
