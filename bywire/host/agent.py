@@ -75,6 +75,7 @@ class HostAgent:
             scans=scans,
             faults=self.faults,
             heartbeat_sent=heartbeat_sent,
+            lockstep=lockstep,
         )
         self.resources.prepare_world(self.config.modules)
         self.stopped = False

@@ -2,7 +2,8 @@
 runs it: bus servers, ECU, plant (with the urban world, its object list on loopback UDP) and host (the `urban`
 configuration) as separate processes. A four-way stop with a car waiting (also on LIDAR: the plant's sensor
 process casts, the host's perception process tracks), the host frozen mid-turn (SIGSTOP), the DARPA sample
-mission's first 90 s (also on LIDAR) and the whole mission; behaviour is judged, never timing."""
+mission's first 90 s (also on LIDAR) and the whole mission, the parking lot (the zone planner in its
+worker process); behaviour is judged, never timing."""
 
 from __future__ import annotations
 
@@ -119,3 +120,24 @@ def test_host_frozen_mid_turn_the_ecu_stops_the_car(tmp_path: Path) -> None:
     m = result["metrics"]
     assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"
     assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True and m["collisions"] == 0
+
+
+def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
+    """The zone planner on wall time: each plan is solved in the behaviour's worker process while the
+    car holds, the host keeps its rhythm (no stale request, no stop), and the car parks between the two
+    parked cars, backs out and leaves by the exit."""
+    path = builtin_scenarios()["zone_park_between_cars"]
+    doc = yaml.safe_load(path.read_text())
+    doc["name"] = "zone_park_between_cars_hil"
+    doc["duration_s"] = 80.0  # done in about 70 s; the suite's time is counted
+    for key in ("rndf", "mdf"):
+        doc["urban"][key] = str(path.parent / doc["urban"][key])
+    doc["checks"] = [c for c in doc["checks"] if c["metric"] != "time_s"]
+    result = _run_hil(doc, tmp_path)
+    m = result["metrics"]
+    assert (
+        m["checkpoints_reached_list"] == [1, 2, 3] and m["collisions"] == 0 and m["final_state"] == "ENGAGED"
+    )
+    leaves = [s.rsplit("/", 1)[-1] for _, s in result["state_history"]]
+    assert leaves[1:5] == ["ZoneApproach", "ZoneEnter", "ZonePark", "ZoneLeave"]
+    assert "ZoneRecovery" not in leaves and m["min_speed_mps"] < -0.2

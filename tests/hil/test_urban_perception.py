@@ -5,7 +5,7 @@ are the zone planner's map.
 
 Every shipped urban scenario with LIDAR perception is the `-m slow` campaign (`test_every_urban_scenario_
 passes_on_lidar`, about 40 s of CPU each); the default run has a four-way stop with waiting cars, the
-parking lot, and `rndf_offset` both ways."""
+parked car, and `rndf_offset` both ways."""
 
 from __future__ import annotations
 
@@ -126,6 +126,7 @@ def test_rndf_offset_passes_with_the_lane_markings_and_fails_on_the_map_alone() 
     assert perfect["metrics"]["lateral_error_rms_m"] > 1.0
 
 
+@pytest.mark.slow  # ~70 s of CPU; the default run has the lot on perfect perception in SIL and in HIL
 def test_the_parking_lot_is_planned_on_the_lidars_occupancy_grid() -> None:
     """The zone planner's map from the perception's obstacle cells and tracks: past the car parked across
     the way, into the spot between two parked cars, out by the exit, touching nothing."""

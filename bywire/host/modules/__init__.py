@@ -56,6 +56,9 @@ class HostResources:
     scans: Any = None
     faults: HostFaultHooks = field(default_factory=NoFaults)
     heartbeat_sent: Callable[[float], None] | None = None  # told of every heartbeat (a stall recorder)
+    # The runtime steps its modules in lockstep with a simulated clock (SIL, replay): what a module would
+    # do in the background on wall time it then does at once, so that runs stay deterministic.
+    lockstep: bool = True
 
     # Built once per host (a pyproj frame takes ~0.1 s, a lane map ~1 s): a module's start must not
     # spend its hang bound on them, nor a restart. `prepare_world` builds them before the runtime starts;
@@ -322,7 +325,8 @@ def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Mo
 
     assert res is not None
     graph, mission, lane_index = res.urban_network()
-    return UrbanBehaviour(Behaviour(MissionPlanner(graph, mission), lane_index=lane_index), res.urban_log())
+    behaviour = Behaviour(MissionPlanner(graph, mission), lane_index=lane_index)
+    return UrbanBehaviour(behaviour, res.urban_log(), zone_planner_process=not res.lockstep)
 
 
 def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Module:

@@ -8,18 +8,19 @@ from __future__ import annotations
 
 from ..context import BehaviourContext
 from ..hsm import State, Transition
-from .navigator import front_in_spot, navigator
+from .navigator import front_in_spot, navigator, take_planned_legs
 
 __all__ = ["zone_enter_state"]
 
 
 def _enter_entry(ctx: BehaviourContext) -> None:
-    legs = navigator(ctx).legs_to_target(ctx)
-    if legs:
-        ctx.begin_legs(legs)
+    navigator(ctx).request_legs(ctx)
+    take_planned_legs(ctx)
 
 
 def _enter_activity(ctx: BehaviourContext) -> None:
+    if take_planned_legs(ctx):
+        return
     target = navigator(ctx).target
     what = "the exit" if target is None or target.kind == "exit" else f"spot {target.point.lane_id}"
     how = "planned path" if navigator(ctx).planned else "stand-in straight lines"

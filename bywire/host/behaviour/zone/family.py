@@ -63,7 +63,13 @@ def _follow(ctx: BehaviourContext) -> None:
             ctx.stop_rear_at(leg.end_s_m, "zone: end of a planned leg")
             ctx.cap(rules.SPOT_SPEED_MPS, "zone: manoeuvring")
     if ctx.legs and isinstance(nav, ZoneNavigator) and nav.planned:
-        _replan_when_stalled(ctx, nav)
+        if nav.replanning and nav.pending is not None:
+            legs = nav.poll_legs(ctx)  # the legs being driven stay until the new ones are there
+            if legs:
+                ctx.begin_legs(legs)
+                ctx.say("zone: replanned around what stands on the path")
+        else:
+            _replan_when_stalled(ctx, nav)
     if ctx.legs:
         ctx.plan.leg = ctx.legs[ctx.leg_index]
         ctx.plan.leg_s_m = ctx.leg_s_m
@@ -86,8 +92,9 @@ def _replan_when_stalled(ctx: BehaviourContext, nav: ZoneNavigator) -> None:
     if ctx.t_s - nav.stalled_since_s < rules.ZONE_REPLAN_STALL_S:
         return
     nav.stalled_since_s = None
-    legs = nav.legs_to_target(ctx, back_out=False)
-    if legs and nav.planned:
+    nav.request_legs(ctx, back_out=False)
+    legs = nav.poll_legs(ctx)
+    if legs:
         ctx.begin_legs(legs)
         ctx.say("zone: replanned around what stands on the path")
 

@@ -8,19 +8,20 @@ from __future__ import annotations
 from .. import rules
 from ..context import BehaviourContext
 from ..hsm import State, Transition
-from .navigator import front_in_spot, navigator, zone_speed
+from .navigator import front_in_spot, navigator, take_planned_legs, zone_speed
 
 __all__ = ["zone_leave_state"]
 
 
 def _leave_entry(ctx: BehaviourContext) -> None:
-    legs = navigator(ctx).legs_to_target(ctx)
-    if legs:
-        ctx.begin_legs(legs)
+    navigator(ctx).request_legs(ctx)
+    take_planned_legs(ctx)
 
 
 def _leave_activity(ctx: BehaviourContext) -> None:
     nav = navigator(ctx)
+    if take_planned_legs(ctx):
+        return
     if nav.planned:  # the planner's legs reverse out and go on; the Zone family drives them
         target = nav.target
         ctx.say(

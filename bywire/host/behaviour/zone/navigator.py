@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -25,9 +26,9 @@ from bywire.host.roadnet.ids import WaypointId
 from .. import rules
 from ..context import BehaviourContext
 from ..manoeuvre import Leg, polyline_leg
-from .planning import PlannedLegs, goal_in_spot, plan_legs
+from .planning import InlineZonePlanner, PlannedLegs, ZonePlanner, goal_in_spot, legs_of, make_request
 
-__all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "zone_speed"]
+__all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "take_planned_legs", "zone_speed"]
 
 _ZONE = frozenset({EdgeKind.ZONE})
 _EXIT_SAMPLE_M = 0.5
@@ -67,6 +68,8 @@ class ZoneNavigator:
         self.final_leg = 0  # the leg that reaches the target
         self.last_plan: PlannedLegs | str | None = None
         self.stalled_since_s: float | None = None  # stopped short of a planned leg's end since
+        self.pending: int | None = None  # the zone planner's ticket of the plan asked for
+        self.replanning = False  # the plan asked for replaces legs being driven
         self.index = 0
         self.parked_since_s: float | None = None
         self.wp1_s_m = math.inf  # on the current forward leg
@@ -116,13 +119,13 @@ class ZoneNavigator:
             self.wp1_s_m = self.wp2_s_m = math.inf
         return leg
 
-    def legs_to_target(self, ctx: BehaviourContext, back_out: bool = True) -> tuple[Leg, ...]:
-        """The zone planner's legs from our pose to the current target: into a spot, front bumper at its
-        checkpoint, or to the perimeter exit and on along the exit edge. Where it finds none, the stand-in's
-        straight lines (reversing out of the spot just left first), and the reason is said."""
+    def request_legs(self, ctx: BehaviourContext, back_out: bool = True) -> None:
+        """Ask the zone planner for the legs from our pose to the current target: into a spot, front
+        bumper at its checkpoint, or to the perimeter exit and on along the exit edge (straight back out
+        of the spot just left first, unless `back_out` is False: a replan). `poll_legs` gives them."""
         target = self.target
         if target is None:
-            return ()
+            return
         ego = ctx.situation.ego
         then = None
         if target.kind == "spot":
@@ -143,13 +146,34 @@ class ZoneNavigator:
             left = self.targets[self.index - 1]
             assert left.spot_end is not None
             (x1, y1), (x2, y2) = self._xy(left.point), self._xy(left.spot_end)
-            back_out_m = (
-                math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M
-            )  # front clear of the spot
-        planned = plan_legs(ctx, self.zone_id, goal, then, back_out_m)
+            back_out_m = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of it
+        self.replanning = not back_out and self.planned
+        self.pending = self.planner(ctx).submit(make_request(ctx, self.zone_id, goal, then, back_out_m))
+
+    @staticmethod
+    def planner(ctx: BehaviourContext) -> ZonePlanner:
+        if ctx.zone_planner is None:
+            ctx.zone_planner = InlineZonePlanner()
+        return cast(ZonePlanner, ctx.zone_planner)
+
+    def poll_legs(self, ctx: BehaviourContext) -> tuple[Leg, ...] | None:
+        """The requested legs once the planner has them (None: still planning). Where it found none, the
+        stand-in's straight lines (reversing out of the spot just left first), and the reason is said; a
+        replan that finds none gives no legs (the ones being driven stay)."""
+        if self.pending is None:
+            return None
+        reply = self.planner(ctx).poll(self.pending)
+        if reply is None:
+            return None
+        self.pending = None
+        planned = legs_of(reply)
+        target = self.target
+        if target is None:
+            return ()
+        ego = ctx.situation.ego
         self.last_plan = planned
         if isinstance(planned, str):
-            if not back_out and self.planned:
+            if self.replanning:
                 ctx.say(planned)
                 return ()  # a replan that finds nothing keeps the legs being driven
             self.planned = False
@@ -186,6 +210,20 @@ class ZoneNavigator:
         if self.index == 0 or self.targets[self.index - 1].kind != "spot":
             return None
         return polyline_leg([(x_m, y_m), self.align_point(self.targets[self.index - 1])], -1)
+
+
+def take_planned_legs(ctx: BehaviourContext) -> bool:
+    """Begin the legs the planner has just given; True while still waiting for them (the car holds)."""
+    nav = navigator(ctx)
+    if nav.pending is None:
+        return False
+    legs = nav.poll_legs(ctx)
+    if legs is None:
+        ctx.hold("zone: planning")
+        return True
+    if legs:
+        ctx.begin_legs(legs)
+    return False
 
 
 def navigator(ctx: BehaviourContext) -> ZoneNavigator:

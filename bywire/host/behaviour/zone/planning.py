@@ -9,20 +9,25 @@ box on it (parked cars, a wall: on perfect perception the simulator's objects, o
 on LIDAR every obstacle cell of the perception's occupancy grid is too (the wall no track holds, the
 whole seen outline of a parked car). Our own place is never an obstacle.
 
-`plan_legs` plans from our rear-axle pose to a goal pose on that map (margin `ZONE_MARGIN_M`, tried
-again at `ZONE_MARGIN_TIGHT_M` when our own pose is inside the wider one, as between two parked cars),
-smooths the path (`navigation.smoothing`) and cuts it into `Leg`s at its cusps, each driven to a stop.
-Where no path is found it says why and the caller keeps the stand-in's straight lines.
+A plan is a `ZonePlanRequest` (`make_request`: the map, the car, our rear-axle pose, the goal pose)
+that `solve` turns into a `ZonePlanReply`: planned (margin `ZONE_MARGIN_M`, again at
+`ZONE_MARGIN_TIGHT_M` when our own pose is inside the wider one, as between two parked cars), smoothed
+(`navigation.smoothing`) and cut at its cusps into stretches, which `legs_of` makes `Leg`s, each driven
+to a stop. Where no path is found the reply says why and the caller keeps the stand-in's straight lines.
 
-Deviation: the paper plans in the navigation module's own process while the car stands; this planner
-runs inside the behaviour's cycle (a plan takes 0.1-0.5 s on this machine: SIL only waits for it; on a
-car the behaviour would miss its deadline while it plans).
+Where it is solved is a `ZonePlanner`'s business: `InlineZonePlanner` at once, in the behaviour's cycle
+(SIL: the simulated clock waits for it, so runs stay deterministic); on wall time the host's process
+worker (`modules.planning.zone_planner_process`), as the paper's navigation module ran in a process of
+its own: a plan takes 0.1-0.5 s here, and the behaviour holds the car ("zone: planning") and keeps its
+rhythm meanwhile.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -37,7 +42,10 @@ from ..context import BehaviourContext
 from ..manoeuvre import Leg, path_leg
 from ..situation import Direction
 
-__all__ = ["PlannedLegs", "goal_in_spot", "plan_legs", "zone_map"]
+__all__ = [
+    "InlineZonePlanner", "PlannedLegs", "ZonePlanReply", "ZonePlanRequest", "ZonePlanner", "goal_in_spot",
+    "legs_of", "make_request", "solve", "zone_map",
+]  # fmt: skip
 
 ZONE_CELL_M = 0.2
 MAP_PAD_M = 14.0
@@ -146,52 +154,118 @@ def _footprint(ctx: BehaviourContext) -> Footprint:
     return Footprint(front_m=front, rear_m=PASSAT_LENGTH_M - front, width_m=PASSAT_WIDTH_M)
 
 
-def plan_legs(
+@dataclass(frozen=True)
+class ZonePlanRequest:
+    """Everything a plan needs, picklable (a worker process solves it): the map, the car, the poses."""
+
+    occupied: np.ndarray  # bool (rows, cols) of ZONE_CELL_M cells
+    origin_xy_m: tuple[float, float]
+    footprint: Footprint
+    start: Pose
+    goal: Pose
+    then: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # driven on after the goal (the exit edge)
+    back_out_m: float  # first straight back this far (out of a spot), where free
+
+
+@dataclass(frozen=True)
+class ZonePlanReply:
+    """The plan's stretches (poses N x 3 and a direction each, driving order), or why there are none."""
+
+    stretches: tuple[tuple[np.ndarray, int], ...]
+    length_m: float
+    direction_changes: int
+    plan_ms: float
+    reason: str = ""  # empty: found
+
+
+class ZonePlanner(Protocol):
+    """Where plans are solved: `submit` a request, `poll` its ticket until it gives the reply."""
+
+    def submit(self, request: ZonePlanRequest) -> int: ...
+
+    def poll(self, ticket: int) -> ZonePlanReply | None: ...
+
+
+class InlineZonePlanner:
+    """Solves each request on `submit`, in the caller's thread (SIL: the simulated clock waits for it)."""
+
+    def __init__(self) -> None:
+        self._replies: dict[int, ZonePlanReply] = {}
+        self._next = 0
+
+    def submit(self, request: ZonePlanRequest) -> int:
+        ticket, self._next = self._next, self._next + 1
+        self._replies[ticket] = solve(request)
+        return ticket
+
+    def poll(self, ticket: int) -> ZonePlanReply | None:
+        return self._replies.pop(ticket, None)
+
+
+def make_request(
     ctx: BehaviourContext,
     zone_id: int,
     goal: Pose,
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     back_out_m: float = 0.0,
-) -> PlannedLegs | str:
-    """Legs from our pose to `goal` through the zone, or why there are none. `then` (x, y, heading
-    arrays from the goal on, forward): driven on after the goal without a stop (the exit edge).
-    `back_out_m` > 0: first straight back that far (out of a parking spot: DARPA rules 5.2 have the car
-    reverse out of it), then the planned path from there."""
+) -> ZonePlanRequest:
+    """The request for a plan from our pose to `goal` on the zone's map now (see `solve`)."""
     ego = ctx.situation.ego
-    start = (ego.x_m, ego.y_m, ego.heading_rad)
-    first: list[Leg] = []
-    if back_out_m > 0.0:
-        c, s = math.cos(start[2]), math.sin(start[2])
-        n = max(2, math.ceil(back_out_m / 0.25) + 1)
-        d = np.linspace(0.0, back_out_m, n)
-        bx, by, bh = start[0] - d * c, start[1] - d * s, np.full(n, start[2])
-        cs = build_cspace(zone_map(ctx, zone_id), _footprint(ctx), margin_m=ZONE_MARGIN_TIGHT_M)
-        if not cs.collides(bx, by, bh).any():
-            first.append(path_leg(bx, by, bh, -1))
-            start = (float(bx[-1]), float(by[-1]), start[2])
     grid = zone_map(ctx, zone_id)
+    return ZonePlanRequest(
+        grid.occupied, grid.origin_xy_m, _footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
+        back_out_m,
+    )  # fmt: skip
+
+
+def solve(req: ZonePlanRequest) -> ZonePlanReply:
+    """Plan (margin `ZONE_MARGIN_M`, again at `ZONE_MARGIN_TIGHT_M` where our own pose is inside the
+    wider one), smooth, cut at the cusps. `back_out_m` > 0: first straight back that far (out of a
+    parking spot: DARPA rules 5.2 have the car reverse out of it) where that is free, then the planned
+    path from there. `then`: appended to the last stretch if it is forward, else a stretch of its own."""
+    grid = GridMap(req.occupied, ZONE_CELL_M, req.origin_xy_m)
+    start = req.start
+    first: list[tuple[np.ndarray, int]] = []
+    if req.back_out_m > 0.0:
+        c, s = math.cos(start[2]), math.sin(start[2])
+        n = max(2, math.ceil(req.back_out_m / 0.25) + 1)
+        d = np.linspace(0.0, req.back_out_m, n)
+        back = np.column_stack((start[0] - d * c, start[1] - d * s, np.full(n, start[2])))
+        cs = build_cspace(grid, req.footprint, margin_m=ZONE_MARGIN_TIGHT_M)
+        if not cs.collides(back[:, 0], back[:, 1], back[:, 2]).any():
+            first.append((back, -1))
+            start = (float(back[-1, 0]), float(back[-1, 1]), start[2])
     params = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
     reason = ""
     for margin in (ZONE_MARGIN_M, ZONE_MARGIN_TIGHT_M):
-        cs = build_cspace(grid, _footprint(ctx), margin_m=margin)
-        result = plan(cs, start, goal, params)
-        if result.found and first and result.length_m < 1e-6:
-            return PlannedLegs(tuple(first), back_out_m, 0, result.plan_ms)
-        if result.found:
+        cs = build_cspace(grid, req.footprint, margin_m=margin)
+        result = plan(cs, start, req.goal, params)
+        if not result.found:
+            reason = result.reason
+            continue
+        stretches: list[tuple[np.ndarray, int]] = list(first)
+        if result.length_m > 1e-6:
             poses, dirs, _ = smooth_path(cs, result.poses, result.directions, params.turn_radius_m)
-            stretches: list[tuple[np.ndarray, Direction]] = [
-                (poses[i0 : i1 + 1], 1 if dirs[i1] > 0 else -1) for i0, i1 in split_at_cusps(dirs)
-            ]
-            if then is not None:
-                more = np.column_stack(then)
-                if stretches[-1][1] == 1:
-                    stretches[-1] = (np.vstack((stretches[-1][0], more[1:])), 1)
-                else:
-                    stretches.append((more, 1))
-            legs = first + [path_leg(part[:, 0], part[:, 1], part[:, 2], d) for part, d in stretches]
-            changes = result.direction_changes + (1 if first and stretches[0][1] == 1 else 0)
-            return PlannedLegs(
-                tuple(legs), result.length_m + (back_out_m if first else 0.0), changes, result.plan_ms
-            )
-        reason = result.reason
-    return f"zone planner: {reason}"
+            stretches += [(poses[i0 : i1 + 1], 1 if dirs[i1] > 0 else -1) for i0, i1 in split_at_cusps(dirs)]
+        if req.then is not None:
+            more = np.column_stack(req.then)
+            if stretches and stretches[-1][1] == 1:
+                stretches[-1] = (np.vstack((stretches[-1][0], more[1:])), 1)
+            else:
+                stretches.append((more, 1))
+        signs = [d for _, d in stretches]
+        changes = sum(1 for a, b in itertools.pairwise(signs) if a != b)
+        length = result.length_m + (req.back_out_m if first else 0.0)
+        return ZonePlanReply(tuple(stretches), length, changes, result.plan_ms)
+    return ZonePlanReply((), 0.0, 0, 0.0, f"zone planner: {reason}")
+
+
+def legs_of(reply: ZonePlanReply) -> PlannedLegs | str:
+    """The reply's stretches as `Leg`s, or why there are none."""
+    if reply.reason or not reply.stretches:
+        return reply.reason or "zone planner: an empty plan"
+    legs: list[Leg] = []
+    for part, d in reply.stretches:
+        direction: Direction = 1 if d > 0 else -1
+        legs.append(path_leg(part[:, 0], part[:, 1], part[:, 2], direction))
+    return PlannedLegs(tuple(legs), reply.length_m, reply.direction_changes, reply.plan_ms)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -90,9 +91,13 @@ def objects_on_map(objs: UrbanObjects, offset: LaneOffsetEstimate) -> UrbanObjec
 class UrbanBehaviour(Module):
     """`Behaviour.step` on the store's pose and objects (see the module docstring)."""
 
-    def __init__(self, behaviour: Behaviour, log: UrbanLog | None = None) -> None:
+    def __init__(
+        self, behaviour: Behaviour, log: UrbanLog | None = None, zone_planner_process: bool = False
+    ) -> None:
         self.behaviour = behaviour
         self.log = log or UrbanLog()
+        self._zone_planner_process = zone_planner_process
+        self._zone_planner: Any = None
         self._last_state = ""
         self._matches: dict[str, tuple[tuple[float, float, float], TrackedObject]] = {}
 
@@ -114,6 +119,18 @@ class UrbanBehaviour(Module):
                 matched = flipped
         self._matches[o.object_id] = (key, matched)
         return matched
+
+    def start(self, ctx: ModuleContext) -> None:
+        if self._zone_planner_process and self._zone_planner is None:
+            from bywire.host.modules.planning.zone_planner_process import ProcessZonePlanner
+
+            self._zone_planner = ProcessZonePlanner()
+            self.behaviour.ctx.zone_planner = self._zone_planner
+
+    def close(self) -> None:
+        if self._zone_planner is not None:
+            self._zone_planner.close()
+            self._zone_planner = None
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
