@@ -402,6 +402,7 @@ URBAN_HAND_MADE = (
     "estop_in_intersection",
     "host_freeze_in_turn",
     "zone_park_between_cars",
+    "maze_zone",
 )
 
 # The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run

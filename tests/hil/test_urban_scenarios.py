@@ -103,6 +103,11 @@ def test_what_each_scenario_is_about(hand_made: tuple[str, dict[str, Any]]) -> N
     elif name == "estop_in_intersection":
         assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"
         assert m["standstill_held"] is True and m["final_state"] == "ENGAGED" and m["mission_complete"]
+    elif name == "maze_zone":
+        # through the three corridors to the spot at the far end and back, parked forward, never stuck
+        assert leaves(doc)[1:5] == ["ZoneApproach", "ZoneEnter", "ZonePark", "ZoneLeave"]
+        assert not {"ZoneRecovery", "GlobalRecovery"} & set(leaves(doc))
+        assert m["mission_complete"] and m["min_separation_m"] >= 0.3
     elif name == "zone_park_between_cars":
         # the zone planner's path: in past the car parked across the way, into the spot between two
         # parked cars, reversing out, out by the exit; never the recovery states

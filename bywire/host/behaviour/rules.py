@@ -125,6 +125,7 @@ __all__ = [
     "ZONE_REPLAN_STALL_S",
     "ZONE_SPEED_MAX_MPS",
     "ZONE_SPOT_ALIGN_M",
+    "ZONE_SPOT_STRAIGHT_M",
     "MtcParams",
     "MtcSituation",
     "forward_following_distance_m",
@@ -277,6 +278,7 @@ ZONE_HANDOVER_M: Final = 5.0
 # ours: out of a spot straight back until the front bumper is this far out of it (DARPA rules 5.2),
 # then the planner's path
 ZONE_BACK_OUT_MARGIN_M: Final = 1.0
+ZONE_SPOT_STRAIGHT_M: Final = 1.0  # ours: a planned entry runs straight from this far before the spot
 ZONE_REPLAN_STALL_S: Final = 3.0  # ours: stopped this long short of a planned leg's end: plan again
 ZONE_PARK_DWELL_S: Final = 1.0  # ours: stand at the checkpoint in the spot, then back out
 CHECKPOINT_TOLERANCE_M: Final = 0.5  # ours: the front bumper "passes over" a checkpoint within this

@@ -30,6 +30,7 @@ from __future__ import annotations
 import heapq
 import math
 import time
+from collections.abc import Generator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +40,7 @@ from .cspace import CSpace
 from .heuristics import HeuristicField
 from .primitives import MotionPrimitives, build_primitives
 
-__all__ = ["Plan", "PlannerParams", "plan"]
+__all__ = ["Plan", "PlannerParams", "plan", "search"]
 
 Pose = tuple[float, float, float]
 
@@ -158,6 +159,32 @@ def plan(
     """Search a path from `start` to `goal` (poses of the rear axle's centre) on `cspace`.
 
     `heuristic`: "both" (the paper's maximum), "kinematic", "obstacle" or "none" (Dijkstra)."""
+    steps = search(cspace, start, goal, params, heuristic=heuristic, exhaustive=exhaustive,
+                   keep_tree=keep_tree, primitives=primitives, heuristic_field=heuristic_field)  # fmt: skip
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            result: Plan = done.value
+            return result
+
+
+def search(
+    cspace: CSpace,
+    start: Pose,
+    goal: Pose,
+    params: PlannerParams | None = None,
+    *,
+    heuristic: str = "both",
+    exhaustive: bool = False,
+    keep_tree: bool = False,
+    primitives: MotionPrimitives | None = None,
+    heuristic_field: HeuristicField | None = None,
+    yield_every: int = 500,
+) -> Generator[int, None, Plan]:
+    """`plan` in steps: yields the expansions so far every `yield_every` expansions and returns the
+    `Plan` (a caller with a cycle to keep, such as the behaviour in lockstep SIL, runs a few steps per
+    cycle: the result depends on the expansions, never on the clock)."""
     p = params or PlannerParams()
     t0 = time.perf_counter()
     res = cspace.grid.resolution_m
@@ -247,6 +274,8 @@ def plan(
         expansions += 1
         if expansions > p.max_expansions:
             break
+        if expansions % yield_every == 0:
+            yield expansions
         dist = math.hypot(pose[0] - goal[0], pose[1] - goal[1])
         near = dist < 2.0 * radius
         if dist <= p.shot_range_m and (exhaustive or near or expansions % p.shot_every == 1):

@@ -47,7 +47,15 @@ def test_zone_enter_park_leave(lot) -> None:  # type: ignore[no-untyped-def]
     assert math.hypot(fx - 145.5, fy) <= rules.STOP_LINE_TOLERANCE_M
     # out of the spot in reverse, then forward to the exit
     leave = [f for f in sim.frames if f.state == "Zone/ZoneLeave"]
-    assert leave[0].command.direction == -1 and min(f.speed_mps for f in leave) < -0.5
+    # the planner's step: a hold of a few cycles ("zone: planning"), then straight back
+    planning = [f for f in leave if "zone: planning" in f.command.reason]
+    assert (
+        planning
+        and planning[-1].t_s - leave[0].t_s < 1.0
+        and all(f.command.desired_speed_mps == 0.0 for f in planning)
+    )
+    driving = [f for f in leave if "zone: planning" not in f.command.reason]
+    assert driving[0].command.direction == -1 and min(f.speed_mps for f in leave) < -0.5
     assert leave[-1].command.direction == 1
     # straight back until the front bumper is out of the spot (140 .. 145.5) by the margin
     backed = [f for f in leave if f.command.direction == -1]
@@ -58,7 +66,8 @@ def test_zone_enter_park_leave(lot) -> None:  # type: ignore[no-untyped-def]
         5 * rules.MPH_MPS + 0.05
     )
     # the planner's path, and it says so
-    assert "planned path" in next(f for f in sim.frames if f.state == "Zone/ZoneEnter").command.reason
+    enter = [f.command.reason for f in sim.frames if f.state == "Zone/ZoneEnter"]
+    assert enter[0] == "zone: planning" and any("planned path" in r for r in enter)
     # and the road afterwards is driven west to the final checkpoint (3.1.3 at x = 0)
     last = sim.frames[-1]
     assert last.x_m - FRONT == pytest.approx(

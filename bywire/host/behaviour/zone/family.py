@@ -2,11 +2,11 @@
 the substates.
 
 On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
-followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) at
-spot speed, and the next one begun; stopped short of a planned leg's end for `ZONE_REPLAN_STALL_S`, the
-way to the target is planned again from where we stand (seed 000 Sec. 10's replanning). The family
-leaves to Drive once the rear axle is past the perimeter exit (route tracking resumes there) and to
-ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
+followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) and
+the next one begun; reversing is at spot speed; never past the plan's end; stopped short of a planned
+leg's end for `ZONE_REPLAN_STALL_S`, the way to the target is planned again from where we stand (seed
+000 Sec. 10's replanning). The family leaves to Drive once the rear axle is past the perimeter exit
+(route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
 """
 
 from __future__ import annotations
@@ -61,8 +61,18 @@ def _follow(ctx: BehaviourContext) -> None:
             ctx.select_leg(ctx.leg_index + 1)
         else:
             ctx.stop_rear_at(leg.end_s_m, "zone: end of a planned leg")
-            ctx.cap(rules.SPOT_SPEED_MPS, "zone: manoeuvring")
+    if (
+        ctx.legs
+        and isinstance(nav, ZoneNavigator)
+        and nav.planned
+        and ctx.legs[ctx.leg_index].direction == -1
+    ):
+        ctx.cap(rules.SPOT_SPEED_MPS, "zone: reversing")
     if ctx.legs and isinstance(nav, ZoneNavigator) and nav.planned:
+        # never past the planned path's end, whatever the substate makes of it (the spot's own stop and
+        # the exit's hand-over to Drive both come before it)
+        if nav.on_final_leg(ctx):
+            ctx.stop_rear_at(ctx.legs[-1].end_s_m, "zone: end of the plan")
         if nav.replanning and nav.pending is not None:
             legs = nav.poll_legs(ctx)  # the legs being driven stay until the new ones are there
             if legs:

@@ -128,9 +128,19 @@ class ZoneNavigator:
             return
         ego = ctx.situation.ego
         then = None
+        forward_via = None
         if target.kind == "spot":
+            # forward in (rules 5.2 "pull forward into"): where the plan to the parked pose arrives
+            # reversing, the plan goes instead to where a straight run along the spot's axis begins (the
+            # front bumper ZONE_SPOT_STRAIGHT_M short of the spot) and on along it without a stop
             assert target.spot_end is not None
-            goal = goal_in_spot(ctx, target.point, target.spot_end)
+            gx, gy, gh = goal_in_spot(ctx, target.point, target.spot_end)
+            (x1, y1), (x2, y2) = self._xy(target.point), self._xy(target.spot_end)
+            run = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_SPOT_STRAIGHT_M
+            d = np.linspace(-run, 0.0, max(2, math.ceil(run / _EXIT_SAMPLE_M) + 1))
+            run_in = (gx + d * math.cos(gh), gy + d * math.sin(gh), np.full(d.size, gh))
+            goal = (gx, gy, gh)
+            forward_via = ((float(run_in[0][0]), float(run_in[1][0]), gh), run_in)
         else:
             px, py = self._xy(target.point)
             heading = math.atan2(py - ego.y_m, px - ego.x_m)
@@ -148,7 +158,8 @@ class ZoneNavigator:
             (x1, y1), (x2, y2) = self._xy(left.point), self._xy(left.spot_end)
             back_out_m = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of it
         self.replanning = not back_out and self.planned
-        self.pending = self.planner(ctx).submit(make_request(ctx, self.zone_id, goal, then, back_out_m))
+        request = make_request(ctx, self.zone_id, goal, then, back_out_m, forward_via)
+        self.pending = self.planner(ctx).submit(request)
 
     @staticmethod
     def planner(ctx: BehaviourContext) -> ZonePlanner:
@@ -223,6 +234,7 @@ def take_planned_legs(ctx: BehaviourContext) -> bool:
         return True
     if legs:
         ctx.begin_legs(legs)
+        ctx.plan.leg, ctx.plan.leg_s_m = ctx.legs[0], ctx.leg_s_m  # this cycle already drives the new legs
     return False
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -33,7 +34,7 @@ import numpy as np
 
 from bywire.host.navigation.cspace import Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
-from bywire.host.navigation.hybrid_astar import PlannerParams, plan
+from bywire.host.navigation.hybrid_astar import PlannerParams, search
 from bywire.host.navigation.smoothing import smooth_path, split_at_cusps
 from bywire.host.roadnet.ids import WaypointId
 
@@ -44,7 +45,7 @@ from ..situation import Direction
 
 __all__ = [
     "InlineZonePlanner", "PlannedLegs", "ZonePlanReply", "ZonePlanRequest", "ZonePlanner", "goal_in_spot",
-    "legs_of", "make_request", "solve", "zone_map",
+    "legs_of", "make_request", "solve", "solve_steps", "zone_map",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
@@ -55,6 +56,9 @@ ZONE_MARGIN_TIGHT_M = 0.1
 # a metre backwards costs this many forwards: a driver backs out of a spot and turns, and does not
 # reverse the length of the lot because that is a few metres shorter
 ZONE_REVERSE_FACTOR = 2.5
+# the inline planner's step: about 0.1-0.2 s of search on this machine, well inside the behaviour's hang
+# bound; a plan of a few thousand expansions takes a few cycles
+SEARCH_STEP_EXPANSIONS = 500
 PASSAT_WIDTH_M = 1.82
 PASSAT_LENGTH_M = 4.77
 
@@ -165,6 +169,9 @@ class ZonePlanRequest:
     goal: Pose
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # driven on after the goal (the exit edge)
     back_out_m: float  # first straight back this far (out of a spot), where free
+    # where the plan must arrive driving forward (into a spot): if the plan to `goal` arrives reversing,
+    # plan instead to this pose and drive `then` from it (a straight run into the spot)
+    forward_via: tuple[Pose, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
 
 @dataclass(frozen=True)
@@ -187,19 +194,31 @@ class ZonePlanner(Protocol):
 
 
 class InlineZonePlanner:
-    """Solves each request on `submit`, in the caller's thread (SIL: the simulated clock waits for it)."""
+    """Solves each request in the caller's thread, one step of `solve_steps` per `poll` (one map, or
+    `SEARCH_STEP_EXPANSIONS` of the search: a few hundred milliseconds at most): the behaviour keeps
+    its cycle (and the supervisor's hang bound) however long the search, and in lockstep SIL the reply
+    comes after the same number of cycles in every run."""
 
     def __init__(self) -> None:
-        self._replies: dict[int, ZonePlanReply] = {}
+        self._steps: dict[int, Generator[object, None, ZonePlanReply]] = {}
         self._next = 0
 
     def submit(self, request: ZonePlanRequest) -> int:
         ticket, self._next = self._next, self._next + 1
-        self._replies[ticket] = solve(request)
+        self._steps[ticket] = solve_steps(request)
         return ticket
 
     def poll(self, ticket: int) -> ZonePlanReply | None:
-        return self._replies.pop(ticket, None)
+        steps = self._steps.get(ticket)
+        if steps is None:
+            return ZonePlanReply((), 0.0, 0, 0.0, f"zone planner: no request {ticket}")
+        try:
+            next(steps)
+        except StopIteration as done:
+            del self._steps[ticket]
+            reply: ZonePlanReply = done.value
+            return reply
+        return None
 
 
 def make_request(
@@ -208,17 +227,29 @@ def make_request(
     goal: Pose,
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     back_out_m: float = 0.0,
+    forward_via: tuple[Pose, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> ZonePlanRequest:
     """The request for a plan from our pose to `goal` on the zone's map now (see `solve`)."""
     ego = ctx.situation.ego
     grid = zone_map(ctx, zone_id)
     return ZonePlanRequest(
         grid.occupied, grid.origin_xy_m, _footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
-        back_out_m,
+        back_out_m, forward_via,
     )  # fmt: skip
 
 
 def solve(req: ZonePlanRequest) -> ZonePlanReply:
+    """`solve_steps` to the end (a worker process's call)."""
+    steps = solve_steps(req)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            reply: ZonePlanReply = done.value
+            return reply
+
+
+def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
     """Plan (margin `ZONE_MARGIN_M`, again at `ZONE_MARGIN_TIGHT_M` where our own pose is inside the
     wider one), smooth, cut at the cusps. `back_out_m` > 0: first straight back that far (out of a
     parking spot: DARPA rules 5.2 have the car reverse out of it) where that is free, then the planned
@@ -232,30 +263,48 @@ def solve(req: ZonePlanRequest) -> ZonePlanReply:
         d = np.linspace(0.0, req.back_out_m, n)
         back = np.column_stack((start[0] - d * c, start[1] - d * s, np.full(n, start[2])))
         cs = build_cspace(grid, req.footprint, margin_m=ZONE_MARGIN_TIGHT_M)
+        yield "map"
         if not cs.collides(back[:, 0], back[:, 1], back[:, 2]).any():
             first.append((back, -1))
             start = (float(back[-1, 0]), float(back[-1, 1]), start[2])
+    reply = yield from _plan_to(grid, req, start, first, req.goal, req.then)
+    if req.forward_via is not None and (reply.reason or reply.stretches[-1][1] != 1):
+        via, run = req.forward_via
+        reply = yield from _plan_to(grid, req, start, first, via, run)
+    return reply
+
+
+def _plan_to(
+    grid: GridMap,
+    req: ZonePlanRequest,
+    start: Pose,
+    first: list[tuple[np.ndarray, int]],
+    goal: Pose,
+    then: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> Generator[object, None, ZonePlanReply]:
     params = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
     reason = ""
     for margin in (ZONE_MARGIN_M, ZONE_MARGIN_TIGHT_M):
         cs = build_cspace(grid, req.footprint, margin_m=margin)
-        result = plan(cs, start, req.goal, params)
+        yield "map"
+        result = yield from search(cs, start, goal, params, yield_every=SEARCH_STEP_EXPANSIONS)
         if not result.found:
             reason = result.reason
             continue
         stretches: list[tuple[np.ndarray, int]] = list(first)
         if result.length_m > 1e-6:
+            yield "smoothing"
             poses, dirs, _ = smooth_path(cs, result.poses, result.directions, params.turn_radius_m)
             stretches += [(poses[i0 : i1 + 1], 1 if dirs[i1] > 0 else -1) for i0, i1 in split_at_cusps(dirs)]
-        if req.then is not None:
-            more = np.column_stack(req.then)
+        if then is not None:
+            more = np.column_stack(then)
             if stretches and stretches[-1][1] == 1:
                 stretches[-1] = (np.vstack((stretches[-1][0], more[1:])), 1)
             else:
                 stretches.append((more, 1))
         signs = [d for _, d in stretches]
         changes = sum(1 for a, b in itertools.pairwise(signs) if a != b)
-        length = result.length_m + (req.back_out_m if first else 0.0)
+        length = result.length_m + sum(float(np.hypot(*np.diff(p[:, :2], axis=0).T).sum()) for p, _ in first)
         return ZonePlanReply(tuple(stretches), length, changes, result.plan_ms)
     return ZonePlanReply((), 0.0, 0, 0.0, f"zone planner: {reason}")
 
