@@ -268,7 +268,8 @@ def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
             first.append((back, -1))
             start = (float(back[-1, 0]), float(back[-1, 1]), start[2])
     reply = yield from _plan_to(grid, req, start, first, req.goal, req.then)
-    if req.forward_via is not None and (reply.reason or reply.stretches[-1][1] != 1):
+    arrives_forward = bool(reply.stretches) and reply.stretches[-1][1] == 1
+    if req.forward_via is not None and (reply.reason or (reply.stretches and not arrives_forward)):
         via, run = req.forward_via
         reply = yield from _plan_to(grid, req, start, first, via, run)
     return reply
@@ -282,6 +283,7 @@ def _plan_to(
     goal: Pose,
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
 ) -> Generator[object, None, ZonePlanReply]:
+    """One goal of `solve_steps`: at the wide margin, else the tight one; `first` driven before it."""
     params = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
     reason = ""
     for margin in (ZONE_MARGIN_M, ZONE_MARGIN_TIGHT_M):
