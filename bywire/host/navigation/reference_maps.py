@@ -83,7 +83,7 @@ def maze_zone() -> ReferenceProblem:
     ]
     grid = GridMap.from_boxes((size, size), res, walls)
     return ReferenceProblem(
-        "maze_zone",
+        "maze_50m",
         grid,
         PASSAT_FOOTPRINT,
         5.5,
