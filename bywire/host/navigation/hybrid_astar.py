@@ -32,6 +32,7 @@ import math
 import time
 from collections.abc import Generator
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -40,9 +41,10 @@ from .cspace import CSpace
 from .heuristics import HeuristicField
 from .primitives import MotionPrimitives, build_primitives
 
-__all__ = ["Plan", "PlannerParams", "plan", "search"]
+__all__ = ["Plan", "PlannerParams", "plan", "run_to_end", "search"]
 
 Pose = tuple[float, float, float]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -159,13 +161,19 @@ def plan(
     """Search a path from `start` to `goal` (poses of the rear axle's centre) on `cspace`.
 
     `heuristic`: "both" (the paper's maximum), "kinematic", "obstacle" or "none" (Dijkstra)."""
-    steps = search(cspace, start, goal, params, heuristic=heuristic, exhaustive=exhaustive,
-                   keep_tree=keep_tree, primitives=primitives, heuristic_field=heuristic_field)  # fmt: skip
+    return run_to_end(
+        search(cspace, start, goal, params, heuristic=heuristic, exhaustive=exhaustive,
+               keep_tree=keep_tree, primitives=primitives, heuristic_field=heuristic_field)
+    )  # fmt: skip
+
+
+def run_to_end(steps: Generator[object, None, T]) -> T:
+    """What a stepped computation (`search`, the zone planner's `solve_steps`) returns, all steps taken."""
     while True:
         try:
             next(steps)
         except StopIteration as done:
-            result: Plan = done.value
+            result: T = done.value
             return result
 
 

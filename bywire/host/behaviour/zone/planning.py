@@ -32,9 +32,9 @@ from typing import Protocol
 
 import numpy as np
 
-from bywire.host.navigation.cspace import Footprint, build_cspace
+from bywire.host.navigation.cspace import CSpace, Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
-from bywire.host.navigation.hybrid_astar import PlannerParams, search
+from bywire.host.navigation.hybrid_astar import PlannerParams, run_to_end, search
 from bywire.host.navigation.smoothing import smooth_path, split_at_cusps
 from bywire.host.roadnet.ids import WaypointId
 
@@ -240,13 +240,7 @@ def make_request(
 
 def solve(req: ZonePlanRequest) -> ZonePlanReply:
     """`solve_steps` to the end (a worker process's call)."""
-    steps = solve_steps(req)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            reply: ZonePlanReply = done.value
-            return reply
+    return run_to_end(solve_steps(req))
 
 
 def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
@@ -255,6 +249,7 @@ def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
     parking spot: DARPA rules 5.2 have the car reverse out of it) where that is free, then the planned
     path from there. `then`: appended to the last stretch if it is forward, else a stretch of its own."""
     grid = GridMap(req.occupied, ZONE_CELL_M, req.origin_xy_m)
+    maps: dict[float, CSpace] = {}  # per margin: the back-out check and every goal tried share them
     start = req.start
     first: list[tuple[np.ndarray, int]] = []
     if req.back_out_m > 0.0:
@@ -262,22 +257,32 @@ def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
         n = max(2, math.ceil(req.back_out_m / 0.25) + 1)
         d = np.linspace(0.0, req.back_out_m, n)
         back = np.column_stack((start[0] - d * c, start[1] - d * s, np.full(n, start[2])))
-        cs = build_cspace(grid, req.footprint, margin_m=ZONE_MARGIN_TIGHT_M)
-        yield "map"
+        cs = yield from _cspace(grid, req.footprint, ZONE_MARGIN_TIGHT_M, maps)
         if not cs.collides(back[:, 0], back[:, 1], back[:, 2]).any():
             first.append((back, -1))
             start = (float(back[-1, 0]), float(back[-1, 1]), start[2])
-    reply = yield from _plan_to(grid, req, start, first, req.goal, req.then)
+    reply = yield from _plan_to(grid, req, maps, start, first, req.goal, req.then)
     arrives_forward = bool(reply.stretches) and reply.stretches[-1][1] == 1
     if req.forward_via is not None and (reply.reason or (reply.stretches and not arrives_forward)):
         via, run = req.forward_via
-        reply = yield from _plan_to(grid, req, start, first, via, run)
+        reply = yield from _plan_to(grid, req, maps, start, first, via, run)
     return reply
+
+
+def _cspace(
+    grid: GridMap, footprint: Footprint, margin_m: float, maps: dict[float, CSpace]
+) -> Generator[object, None, CSpace]:
+    """The configuration space at `margin_m`, built (a step of its own) the first time it is asked for."""
+    if margin_m not in maps:
+        maps[margin_m] = build_cspace(grid, footprint, margin_m=margin_m)
+        yield "map"
+    return maps[margin_m]
 
 
 def _plan_to(
     grid: GridMap,
     req: ZonePlanRequest,
+    maps: dict[float, CSpace],
     start: Pose,
     first: list[tuple[np.ndarray, int]],
     goal: Pose,
@@ -287,8 +292,7 @@ def _plan_to(
     params = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
     reason = ""
     for margin in (ZONE_MARGIN_M, ZONE_MARGIN_TIGHT_M):
-        cs = build_cspace(grid, req.footprint, margin_m=margin)
-        yield "map"
+        cs = yield from _cspace(grid, req.footprint, margin, maps)
         result = yield from search(cs, start, goal, params, yield_every=SEARCH_STEP_EXPANSIONS)
         if not result.found:
             reason = result.reason
