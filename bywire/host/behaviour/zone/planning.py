@@ -59,8 +59,6 @@ ZONE_REVERSE_FACTOR = 2.5
 # the inline planner's step: about 0.1-0.2 s of search on this machine, well inside the behaviour's hang
 # bound; a plan of a few thousand expansions takes a few cycles
 SEARCH_STEP_EXPANSIONS = 500
-PASSAT_WIDTH_M = 1.82
-PASSAT_LENGTH_M = 4.77
 
 Pose = tuple[float, float, float]
 
@@ -137,12 +135,12 @@ def _own_box(
     ctx: BehaviourContext, x: float, y: float, heading: float
 ) -> tuple[float, float, float, float, float]:
     """Our car's box (rear axle pose), grown by the planner's tight margin."""
-    front = ctx.params.rear_axle_to_front_m
-    rear = PASSAT_LENGTH_M - front
-    shift = 0.5 * (front - rear)
+    fp = _footprint(ctx)
+    shift = 0.5 * (fp.front_m - fp.rear_m)
     grow = 2.0 * ZONE_MARGIN_TIGHT_M
-    return (x + shift * math.cos(heading), y + shift * math.sin(heading), heading, PASSAT_LENGTH_M + grow,
-            PASSAT_WIDTH_M + grow)  # fmt: skip
+    length = fp.front_m + fp.rear_m
+    return (x + shift * math.cos(heading), y + shift * math.sin(heading), heading, length + grow,
+            fp.width_m + grow)  # fmt: skip
 
 
 def goal_in_spot(ctx: BehaviourContext, first: WaypointId, checkpoint: WaypointId) -> Pose:
@@ -154,8 +152,9 @@ def goal_in_spot(ctx: BehaviourContext, first: WaypointId, checkpoint: WaypointI
 
 
 def _footprint(ctx: BehaviourContext) -> Footprint:
-    front = ctx.params.rear_axle_to_front_m
-    return Footprint(front_m=front, rear_m=PASSAT_LENGTH_M - front, width_m=PASSAT_WIDTH_M)
+    """Our car's outline as the behaviour's parameters give it."""
+    p = ctx.params
+    return Footprint(p.rear_axle_to_front_m, p.vehicle_length_m - p.rear_axle_to_front_m, p.vehicle_width_m)
 
 
 @dataclass(frozen=True)
