@@ -18,6 +18,11 @@ judged against the DARPA Urban Challenge rules the behaviour claims to follow.
   10 Hz from 2 s after engaging, while the behaviour drives a lane or an intersection: not in a lane
   change, passing, K-turn, zone, recovery or replan, nor 5 s after one (those legs leave the lane on
   purpose).
+- `road_departure_m` (`road_departure_at_s`: when): how far a corner of our car ever lay outside the road
+  (every lane and exit a corridor of its RNDF lane width, every zone inside its perimeter:
+  `host.roadnet.road_area`), 0 when never; the simulated curbs stand `CURB_GUTTER_M` (0.3 m) outside
+  it (`hil.lidar.road_marks`). Judged in every state: a K-turn that swings over the curb is exactly what
+  it is for.
 - `perception` (`perfect` | `lidar`), `perception_tracks`, `perception_false_objects`,
   `perception_missed_objects`, `lane_offset_error_m`: what the host perceived, against the truth
   (`hil.perception_eval`); `lidar_revolutions`, `lidar_dropped` what the simulated sensor sent.
@@ -119,6 +124,8 @@ def evaluate_urban(
     m["stop_line_stops"] = len(errors)
     m["stop_line_error_m"] = round(max(abs(e) for e in errors), 3) if errors else None
     m["min_separation_m"] = urban.get("min_separation_m")
+    m["road_departure_m"] = urban.get("road_departure_m")
+    m["road_departure_at_s"] = urban.get("road_departure_at_s")
     m["speed_limit_violations"] = len(urban.get("speed_violations", []))
     coll = urban.get("collisions", [])
     m["collisions"] = len(coll)

@@ -22,7 +22,9 @@ Bookkeeping, every step, all from ground truth: arrivals at and departures from 
 vehicle (precedence), our stop-line stops (front bumper vs line), box-to-box separation of our car to
 every other car and collisions of every pair (separating axes), MDF checkpoints passed in order (front
 bumper or car centre within `CHECKPOINT_TOLERANCE_M`), the speed limit of the lane we are on, our rear
-axle's lateral offset from the nearest lane/exit, and the tracks for the report.
+axle's lateral offset from the nearest lane/exit, how far a corner of our car ever left the road (the
+lanes and exits at their RNDF widths and the zones, `host.roadnet.road_area`), and the tracks for the
+report.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from bywire.host.roadnet.ids import WaypointId
 from bywire.host.roadnet.lane_index import LaneIndex
 from bywire.host.roadnet.mdf import ResolvedMission
 from bywire.host.roadnet.path import Path, concat
+from bywire.host.roadnet.road_area import RoadArea
 from bywire.protocol.objects import EgoPoseRecord, ObjectList, ObjectRecord
 
 FMU_CG_TO_REAR_AXLE_M = 1.42  # vehicle_models/passat: lr
@@ -282,6 +285,9 @@ class UrbanWorld:
         self._over_peak = 0.0
         self._next_lateral_s = 0.0
         self.lateral: list[tuple[float, float, str]] = []  # (t, lateral m, edge kind)
+        self.road = RoadArea.of(self.graph)
+        self.road_departure_m = 0.0  # how far a corner of our car was ever off the road (0: never)
+        self.road_departure_at_s: float | None = None
         self._next_track_s = 0.0
         self.tracks: dict[str, list[tuple[float, float, float]]] = {"ego": []}
         self.ego_speed_limit = math.nan
@@ -556,6 +562,11 @@ class UrbanWorld:
 
     def _book_lane(self, t: float) -> None:
         x, y, h, v = self.ego[0], self.ego[1], self.ego[2], self.ego[3]
+        cx, cy = self.ego_centre()
+        corners = box(cx, cy, h, self.spec.ego_length_m, self.spec.ego_width_m)
+        excess = float(np.max(self.road.excess_m(corners[:, 0], corners[:, 1])))
+        if excess > self.road_departure_m:
+            self.road_departure_m, self.road_departure_at_s = excess, round(t, 2)
         m = self.index.match(x, y, h)
         if m is None:
             self.ego_speed_limit = math.nan
@@ -625,6 +636,8 @@ class UrbanWorld:
             "collisions": list(self.collisions),
             "speed_violations": list(self.speed_violations),
             "lateral": [list(r) for r in self.lateral],
+            "road_departure_m": round(self.road_departure_m, 3),
+            "road_departure_at_s": self.road_departure_at_s,
             "tracks": {k: [list(r) for r in v] for k, v in self.tracks.items()},
             "intersections": [[i.x_m, i.y_m, i.inside_m] for i in self.intersections],
         }

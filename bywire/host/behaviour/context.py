@@ -122,9 +122,9 @@ class BehaviourContext:
         imap: IntersectionMap,
         params: BehaviourParams,
     ) -> None:
-        # where the Zone states' plans are solved (`zone.planning.ZonePlanner`): None, at once in the
+        # where the Zone states' plans are solved (`path_planning.PathPlanner`): None, at once in the
         # cycle; the host module gives a worker process on wall time
-        self.zone_planner: object | None = None
+        self.path_planner: object | None = None
         self.graph = graph
         self.planner = planner
         self.lane_index = lane_index

@@ -326,7 +326,7 @@ def _urban_behaviour(params: Mapping[str, Any], res: HostResources | None) -> Mo
     assert res is not None
     graph, mission, lane_index = res.urban_network()
     behaviour = Behaviour(MissionPlanner(graph, mission), lane_index=lane_index)
-    return UrbanBehaviour(behaviour, res.urban_log(), zone_planner_process=not res.lockstep)
+    return UrbanBehaviour(behaviour, res.urban_log(), path_planner_process=not res.lockstep)
 
 
 def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Module:

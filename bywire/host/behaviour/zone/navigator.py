@@ -1,8 +1,8 @@
 """The zone navigation (seed 000 Sec. 10): `ZoneNavigator`, and what the Zone states read of it.
 
-To each target the zone planner's legs (`planning`, hybrid A* on the zone's obstacle map): into a spot
-with the front bumper on its checkpoint, out of it and on to the next, to the perimeter exit and on
-along the exit edge. Where the planner finds no path, the stand-in of before it:
+To each target the path planner's legs (`path_planning`, hybrid A* on the zone's obstacle map,
+`zone_map`): into a spot with the front bumper on its checkpoint, out of it and on to the next, to the
+perimeter exit and on along the exit edge. Where the planner finds no path, the stand-in of before it:
 
 Straight lines (`manoeuvre.polyline_leg`) from where we are to a point `ZONE_SPOT_ALIGN_M` before the
 spot on its axis, into the spot to its checkpoint, back out along the axis to that point, and from there
@@ -26,7 +26,8 @@ from bywire.host.roadnet.ids import WaypointId
 from .. import rules
 from ..context import BehaviourContext
 from ..manoeuvre import Leg, polyline_leg
-from .planning import InlineZonePlanner, PlannedLegs, ZonePlanner, goal_in_spot, legs_of, make_request
+from ..path_planning import InlinePathPlanner, PathPlanner, PlannedLegs, legs_of, make_request
+from .zone_map import goal_in_spot, zone_map
 
 __all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "take_planned_legs", "zone_speed"]
 
@@ -158,14 +159,14 @@ class ZoneNavigator:
             (x1, y1), (x2, y2) = self._xy(left.point), self._xy(left.spot_end)
             back_out_m = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of it
         self.replanning = not back_out and self.planned
-        request = make_request(ctx, self.zone_id, goal, then, back_out_m, forward_via)
+        request = make_request(ctx, zone_map(ctx, self.zone_id), goal, then, back_out_m, forward_via)
         self.pending = self.planner(ctx).submit(request)
 
     @staticmethod
-    def planner(ctx: BehaviourContext) -> ZonePlanner:
-        if ctx.zone_planner is None:
-            ctx.zone_planner = InlineZonePlanner()
-        return cast(ZonePlanner, ctx.zone_planner)
+    def planner(ctx: BehaviourContext) -> PathPlanner:
+        if ctx.path_planner is None:
+            ctx.path_planner = InlinePathPlanner()
+        return cast(PathPlanner, ctx.path_planner)
 
     def poll_legs(self, ctx: BehaviourContext) -> tuple[Leg, ...] | None:
         """The requested legs once the planner has them (None: still planning). Where it found none, the

@@ -92,12 +92,12 @@ class UrbanBehaviour(Module):
     """`Behaviour.step` on the store's pose and objects (see the module docstring)."""
 
     def __init__(
-        self, behaviour: Behaviour, log: UrbanLog | None = None, zone_planner_process: bool = False
+        self, behaviour: Behaviour, log: UrbanLog | None = None, path_planner_process: bool = False
     ) -> None:
         self.behaviour = behaviour
         self.log = log or UrbanLog()
-        self._zone_planner_process = zone_planner_process
-        self._zone_planner: Any = None
+        self._path_planner_process = path_planner_process
+        self._path_planner: Any = None
         self._last_state = ""
         self._matches: dict[str, tuple[tuple[float, float, float], TrackedObject]] = {}
 
@@ -121,16 +121,16 @@ class UrbanBehaviour(Module):
         return matched
 
     def start(self, ctx: ModuleContext) -> None:
-        if self._zone_planner_process and self._zone_planner is None:
-            from bywire.host.modules.planning.zone_planner_process import ProcessZonePlanner
+        if self._path_planner_process and self._path_planner is None:
+            from bywire.host.modules.planning.path_planner_process import ProcessPathPlanner
 
-            self._zone_planner = ProcessZonePlanner()
-            self.behaviour.ctx.zone_planner = self._zone_planner
+            self._path_planner = ProcessPathPlanner()
+            self.behaviour.ctx.path_planner = self._path_planner
 
     def close(self) -> None:
-        if self._zone_planner is not None:
-            self._zone_planner.close()
-            self._zone_planner = None
+        if self._path_planner is not None:
+            self._path_planner.close()
+            self._path_planner = None
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s

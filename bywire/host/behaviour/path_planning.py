@@ -1,23 +1,22 @@
-"""The Zone states' paths from the zone planner (seed 000 Sec. 10: "These states control invocation of
-the navigation module described in Section 10"), `host.navigation`'s hybrid A*.
+"""The manoeuvres' paths from the path planner (seed 000 Sec. 10: the Zone states, K-turns and U-turns
+"control invocation of the navigation module"), `host.navigation`'s hybrid A* on an obstacle map.
 
-The obstacle map of a zone (`zone_map`): a grid of `ZONE_CELL_M` over the perimeter's bounding box and
-`MAP_PAD_M` around it; outside the perimeter polygon is an obstacle (the car stays in the zone), except
-within `GATE_OPEN_M` of the perimeter points where lanes enter and leave (the car's tail is still on the
-road at the entry, its nose already on it at the exit); every standing object of the world model is a
-box on it (parked cars, a wall: on perfect perception the simulator's objects, on LIDAR the tracks), and
-on LIDAR every obstacle cell of the perception's occupancy grid is too (the wall no track holds, the
-whole seen outline of a parked car). Our own place is never an obstacle.
+A map is where the manoeuvre may drive (the zone's perimeter: `zone.zone_map`; the road's lanes:
+`drive.turnaround`) with `obstacles_on` it: every standing object of the world model a box (parked
+cars, a wall, a barrier: on perfect perception the simulator's objects, on LIDAR the tracks), and on
+LIDAR every obstacle cell of the perception's occupancy grid too (the wall no track holds, the whole seen
+outline of a parked car). Our own place is never an obstacle.
 
-A plan is a `ZonePlanRequest` (`make_request`: the map, the car, our rear-axle pose, the goal pose)
-that `solve` turns into a `ZonePlanReply`: planned (margin `ZONE_MARGIN_M`, again at
-`ZONE_MARGIN_TIGHT_M` when our own pose is inside the wider one, as between two parked cars), smoothed
+A plan is a `PlanRequest` (`make_request`: the map, the car, our rear-axle pose, the goal pose) that
+`solve` turns into a `PlanReply`: planned (margin `ZONE_MARGIN_M`, again at `ZONE_MARGIN_TIGHT_M` when
+our own pose is inside the wider one, as between two parked cars; with `fine` a last try on a finer
+search graph, for turns in a street little wider than the car is long), smoothed
 (`navigation.smoothing`) and cut at its cusps into stretches, which `legs_of` makes `Leg`s, each driven
-to a stop. Where no path is found the reply says why and the caller keeps the stand-in's straight lines.
+to a stop. Where no path is found the reply says why and the caller falls back on its stand-in.
 
-Where it is solved is a `ZonePlanner`'s business: `InlineZonePlanner` at once, in the behaviour's cycle
+Where it is solved is a `PathPlanner`'s business: `InlinePathPlanner` at once, in the behaviour's cycle
 (SIL: the simulated clock waits for it, so runs stay deterministic); on wall time the host's process
-worker (`modules.planning.zone_planner_process`), as the paper's navigation module ran in a process of
+worker (`modules.planning.path_planner_process`), as the paper's navigation module ran in a process of
 its own: a plan takes 0.1-0.5 s here, and the behaviour holds the car ("zone: planning") and keeps its
 rhythm meanwhile.
 """
@@ -27,7 +26,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -36,21 +35,18 @@ from bywire.host.navigation.cspace import CSpace, Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
 from bywire.host.navigation.hybrid_astar import PlannerParams, run_to_end, search
 from bywire.host.navigation.smoothing import smooth_path, split_at_cusps
-from bywire.host.roadnet.ids import WaypointId
 
-from .. import rules
-from ..context import BehaviourContext
-from ..manoeuvre import Leg, path_leg
-from ..situation import Direction
+from . import rules
+from .context import BehaviourContext
+from .manoeuvre import Leg, path_leg
+from .situation import Direction
 
 __all__ = [
-    "InlineZonePlanner", "PlannedLegs", "ZonePlanReply", "ZonePlanRequest", "ZonePlanner", "goal_in_spot",
-    "legs_of", "make_request", "solve", "solve_steps", "zone_map",
+    "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs", "blank_map", "footprint",
+    "legs_of", "make_request", "obstacles_on", "solve", "solve_steps",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
-MAP_PAD_M = 14.0
-GATE_OPEN_M = 12.0  # the car's length, rules.ZONE_HANDOVER_M and the margin before the entry
 ZONE_MARGIN_M = 0.3
 ZONE_MARGIN_TIGHT_M = 0.1
 # a metre backwards costs this many forwards: a driver backs out of a spot and turns, and does not
@@ -59,6 +55,10 @@ ZONE_REVERSE_FACTOR = 2.5
 # the inline planner's step: about 0.1-0.2 s of search on this machine, well inside the behaviour's hang
 # bound; a plan of a few thousand expansions takes a few cycles
 SEARCH_STEP_EXPANSIONS = 500
+SEARCH = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
+# the finer search graph of `PlanRequest.fine`: 0.5 m arcs and a 0.3 m closed set find the many-point
+# turn of an 8 m street the usual one misses (seconds of search: the last resort before a stand-in)
+FINE_SEARCH = replace(SEARCH, arc_m=0.5, xy_bin_m=0.3, max_expansions=40_000)
 
 Pose = tuple[float, float, float]
 
@@ -71,39 +71,17 @@ class PlannedLegs:
     plan_ms: float
 
 
-def _inside(poly: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-polygon test, vectorised over the points."""
-    inside = np.zeros(x.shape, dtype=bool)
-    n = poly.shape[0]
-    for i in range(n):
-        x0, y0 = poly[i]
-        x1, y1 = poly[(i + 1) % n]
-        crosses = (y0 > y) != (y1 > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-        inside ^= crosses & (x < x_at)
-    return inside
+def blank_map(lo_xy_m: tuple[float, float], hi_xy_m: tuple[float, float]) -> GridMap:
+    """An empty grid of `ZONE_CELL_M` cells covering the box from `lo_xy_m` to `hi_xy_m`."""
+    cols = math.ceil((hi_xy_m[0] - lo_xy_m[0]) / ZONE_CELL_M)
+    rows = math.ceil((hi_xy_m[1] - lo_xy_m[1]) / ZONE_CELL_M)
+    return GridMap(np.zeros((rows, cols), dtype=bool), ZONE_CELL_M, (float(lo_xy_m[0]), float(lo_xy_m[1])))
 
 
-def zone_map(ctx: BehaviourContext, zone_id: int) -> GridMap:
-    """The zone's obstacle map now (see the module docstring)."""
-    zone = ctx.graph.network.zone(zone_id)
-    pts = zone.perimeter.points
-    poly = np.array([ctx.graph.vertex_xy(p.id) for p in pts])
-    lo = poly.min(axis=0) - MAP_PAD_M
-    hi = poly.max(axis=0) + MAP_PAD_M
-    cols = math.ceil((hi[0] - lo[0]) / ZONE_CELL_M)
-    rows = math.ceil((hi[1] - lo[1]) / ZONE_CELL_M)
-    grid = GridMap(np.zeros((rows, cols), dtype=bool), ZONE_CELL_M, (float(lo[0]), float(lo[1])))
-    rr, cc = np.mgrid[0:rows, 0:cols]
-    cx, cy = grid.centre_of(rr, cc)
-    blocked = ~_inside(poly, cx, cy)
-    gates = {ex.exit for ex in zone.perimeter.exits} | {
-        ex.entry for ex in ctx.graph.network.exits() if ex.entry.segment == zone_id
-    }
-    for g in gates:
-        gx, gy = ctx.graph.vertex_xy(g)
-        blocked &= np.hypot(cx - gx, cy - gy) > GATE_OPEN_M
+def obstacles_on(ctx: BehaviourContext, grid: GridMap) -> GridMap:
+    """`grid` (where the manoeuvre may not go) with what stands on it now, our own place left as the grid
+    has it (see the module docstring)."""
+    blocked = grid.occupied
     boxes = [
         (o.x_m, o.y_m, o.heading_rad, o.length_m, o.width_m)
         for o in ctx.situation.objects
@@ -116,7 +94,7 @@ def zone_map(ctx: BehaviourContext, zone_id: int) -> GridMap:
         boxes += [
             (float(cx), float(cy), 0.0, float(sz), float(sz)) for cx, cy, sz in cells if _near(grid, cx, cy)
         ]
-    out = GridMap(blocked, ZONE_CELL_M, grid.origin_xy_m).with_boxes(boxes)
+    out = grid.with_boxes(boxes)
     # our own place is no obstacle (a stray return under the car, a track of our own shadow)
     ego = ctx.situation.ego
     own = GridMap(np.zeros_like(out.occupied), ZONE_CELL_M, out.origin_xy_m).with_boxes(
@@ -135,7 +113,7 @@ def _own_box(
     ctx: BehaviourContext, x: float, y: float, heading: float
 ) -> tuple[float, float, float, float, float]:
     """Our car's box (rear axle pose), grown by the planner's tight margin."""
-    fp = _footprint(ctx)
+    fp = footprint(ctx)
     shift = 0.5 * (fp.front_m - fp.rear_m)
     grow = 2.0 * ZONE_MARGIN_TIGHT_M
     length = fp.front_m + fp.rear_m
@@ -143,22 +121,14 @@ def _own_box(
             fp.width_m + grow)  # fmt: skip
 
 
-def goal_in_spot(ctx: BehaviourContext, first: WaypointId, checkpoint: WaypointId) -> Pose:
-    """Our rear-axle pose with the front bumper on the spot's checkpoint, facing into the spot."""
-    (x1, y1), (x2, y2) = ctx.graph.vertex_xy(first), ctx.graph.vertex_xy(checkpoint)
-    heading = math.atan2(y2 - y1, x2 - x1)
-    back = ctx.params.rear_axle_to_front_m
-    return x2 - back * math.cos(heading), y2 - back * math.sin(heading), heading
-
-
-def _footprint(ctx: BehaviourContext) -> Footprint:
+def footprint(ctx: BehaviourContext) -> Footprint:
     """Our car's outline as the behaviour's parameters give it."""
     p = ctx.params
     return Footprint(p.rear_axle_to_front_m, p.vehicle_length_m - p.rear_axle_to_front_m, p.vehicle_width_m)
 
 
 @dataclass(frozen=True)
-class ZonePlanRequest:
+class PlanRequest:
     """Everything a plan needs, picklable (a worker process solves it): the map, the car, the poses."""
 
     occupied: np.ndarray  # bool (rows, cols) of ZONE_CELL_M cells
@@ -171,10 +141,13 @@ class ZonePlanRequest:
     # where the plan must arrive driving forward (into a spot): if the plan to `goal` arrives reversing,
     # plan instead to this pose and drive `then` from it (a straight run into the spot)
     forward_via: tuple[Pose, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    # where the usual search graph finds nothing: a last try at the tight margin on a finer one (short
+    # arcs, a finer closed set: many short legs in a street little wider than the car is long)
+    fine: bool = False
 
 
 @dataclass(frozen=True)
-class ZonePlanReply:
+class PlanReply:
     """The plan's stretches (poses N x 3 and a direction each, driving order), or why there are none."""
 
     stretches: tuple[tuple[np.ndarray, int], ...]
@@ -184,65 +157,67 @@ class ZonePlanReply:
     reason: str = ""  # empty: found
 
 
-class ZonePlanner(Protocol):
+class PathPlanner(Protocol):
     """Where plans are solved: `submit` a request, `poll` its ticket until it gives the reply."""
 
-    def submit(self, request: ZonePlanRequest) -> int: ...
+    def submit(self, request: PlanRequest) -> int: ...
 
-    def poll(self, ticket: int) -> ZonePlanReply | None: ...
+    def poll(self, ticket: int) -> PlanReply | None: ...
 
 
-class InlineZonePlanner:
+class InlinePathPlanner:
     """Solves each request in the caller's thread, one step of `solve_steps` per `poll` (one map, or
     `SEARCH_STEP_EXPANSIONS` of the search: a few hundred milliseconds at most): the behaviour keeps
     its cycle (and the supervisor's hang bound) however long the search, and in lockstep SIL the reply
     comes after the same number of cycles in every run."""
 
     def __init__(self) -> None:
-        self._steps: dict[int, Generator[object, None, ZonePlanReply]] = {}
+        self._steps: dict[int, Generator[object, None, PlanReply]] = {}
         self._next = 0
 
-    def submit(self, request: ZonePlanRequest) -> int:
+    def submit(self, request: PlanRequest) -> int:
         ticket, self._next = self._next, self._next + 1
         self._steps[ticket] = solve_steps(request)
         return ticket
 
-    def poll(self, ticket: int) -> ZonePlanReply | None:
+    def poll(self, ticket: int) -> PlanReply | None:
         steps = self._steps.get(ticket)
         if steps is None:
-            return ZonePlanReply((), 0.0, 0, 0.0, f"zone planner: no request {ticket}")
+            return PlanReply((), 0.0, 0, 0.0, f"zone planner: no request {ticket}")
         try:
             next(steps)
         except StopIteration as done:
             del self._steps[ticket]
-            reply: ZonePlanReply = done.value
+            reply: PlanReply = done.value
             return reply
         return None
 
 
 def make_request(
     ctx: BehaviourContext,
-    zone_id: int,
+    grid: GridMap,
     goal: Pose,
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     back_out_m: float = 0.0,
     forward_via: tuple[Pose, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
-) -> ZonePlanRequest:
-    """The request for a plan from our pose to `goal` on the zone's map now (see `solve`)."""
+    fine: bool = False,
+) -> PlanRequest:
+    """The request for a plan from our pose to `goal` on `grid` (see `solve`)."""
+    if abs(grid.resolution_m - ZONE_CELL_M) > 1e-9:
+        raise ValueError(f"path planning: a map of {grid.resolution_m} m cells, not {ZONE_CELL_M} m")
     ego = ctx.situation.ego
-    grid = zone_map(ctx, zone_id)
-    return ZonePlanRequest(
-        grid.occupied, grid.origin_xy_m, _footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
-        back_out_m, forward_via,
+    return PlanRequest(
+        grid.occupied, grid.origin_xy_m, footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
+        back_out_m, forward_via, fine,
     )  # fmt: skip
 
 
-def solve(req: ZonePlanRequest) -> ZonePlanReply:
+def solve(req: PlanRequest) -> PlanReply:
     """`solve_steps` to the end (a worker process's call)."""
     return run_to_end(solve_steps(req))
 
 
-def solve_steps(req: ZonePlanRequest) -> Generator[object, None, ZonePlanReply]:
+def solve_steps(req: PlanRequest) -> Generator[object, None, PlanReply]:
     """Plan (margin `ZONE_MARGIN_M`, again at `ZONE_MARGIN_TIGHT_M` where our own pose is inside the
     wider one), smooth, cut at the cusps. `back_out_m` > 0: first straight back that far (out of a
     parking spot: DARPA rules 5.2 have the car reverse out of it) where that is free, then the planned
@@ -280,17 +255,19 @@ def _cspace(
 
 def _plan_to(
     grid: GridMap,
-    req: ZonePlanRequest,
+    req: PlanRequest,
     maps: dict[float, CSpace],
     start: Pose,
     first: list[tuple[np.ndarray, int]],
     goal: Pose,
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-) -> Generator[object, None, ZonePlanReply]:
+) -> Generator[object, None, PlanReply]:
     """One goal of `solve_steps`: at the wide margin, else the tight one; `first` driven before it."""
-    params = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
+    tries = [(ZONE_MARGIN_M, SEARCH), (ZONE_MARGIN_TIGHT_M, SEARCH)]
+    if req.fine:
+        tries.append((ZONE_MARGIN_TIGHT_M, FINE_SEARCH))
     reason = ""
-    for margin in (ZONE_MARGIN_M, ZONE_MARGIN_TIGHT_M):
+    for margin, params in tries:
         cs = yield from _cspace(grid, req.footprint, margin, maps)
         result = yield from search(cs, start, goal, params, yield_every=SEARCH_STEP_EXPANSIONS)
         if not result.found:
@@ -310,11 +287,11 @@ def _plan_to(
         signs = [d for _, d in stretches]
         changes = sum(1 for a, b in itertools.pairwise(signs) if a != b)
         length = result.length_m + sum(float(np.hypot(*np.diff(p[:, :2], axis=0).T).sum()) for p, _ in first)
-        return ZonePlanReply(tuple(stretches), length, changes, result.plan_ms)
-    return ZonePlanReply((), 0.0, 0, 0.0, f"zone planner: {reason}")
+        return PlanReply(tuple(stretches), length, changes, result.plan_ms)
+    return PlanReply((), 0.0, 0, 0.0, f"zone planner: {reason}")
 
 
-def legs_of(reply: ZonePlanReply) -> PlannedLegs | str:
+def legs_of(reply: PlanReply) -> PlannedLegs | str:
     """The reply's stretches as `Leg`s, or why there are none."""
     if reply.reason or not reply.stretches:
         return reply.reason or "zone planner: an empty plan"

@@ -1,0 +1,136 @@
+"""Where the road is: the drivable area of a road network, for the planner's obstacle map on a road (seed
+000 Sec. 10: K-turns and U-turns are planned "on the obstacle map" like a zone) and for judging whether a
+car stayed on it.
+
+The RNDF gives lanes as centre lines with a width, and exits as connectors between them (format sec.
+2.1: an exit's implied lane is the narrower of the two). The road is taken to be exactly that: every
+LANE and EXIT edge a corridor of its lane width around its path (`DEFAULT_LANE_WIDTH_M` where the file
+gives none), the band between adjacent lanes of a segment (their centre lines no more than the graph's
+`adjacent_max_widths` lane widths apart: one street, whatever its lanes' painted widths leave between
+them), every zone the inside of its perimeter polygon. A point's *excess* is how far it lies
+outside all of them (<= 0: on the road): the distance to the nearest path sample minus that sample's half
+width, the least over the `NEIGHBOURS` nearest samples (where a narrow exit meets a wide lane, the wide
+lane's edge counts). A lane's end is rounded (a half disc of its half width past the last waypoint):
+the RNDF says nothing of what lies beyond, and a dead end's last waypoint is where a car stops with
+its bumper, not where the asphalt ends.
+
+Derived edges (lane changes, K-turns, zone edges) add nothing: they lie within the lanes and zones they
+join or are the placeholder geometry of a manoeuvre planned here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from .graph import DEFAULT_LANE_WIDTH_M, EdgeKind, RoadGraph
+from .ids import LaneId
+
+__all__ = ["RoadArea", "polygon_contains"]
+
+SAMPLE_M = 0.25
+NEIGHBOURS = 8
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+def polygon_contains(poly: FloatArray, x: FloatArray, y: FloatArray) -> BoolArray:
+    """Even-odd point-in-polygon test of the points (x, y) against `poly` (n, 2), vectorised."""
+    inside = np.zeros(np.shape(x), dtype=bool)
+    n = poly.shape[0]
+    for i in range(n):
+        x0, y0 = poly[i]
+        x1, y1 = poly[(i + 1) % n]
+        crosses = (y0 > y) != (y1 > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        inside ^= crosses & (x < x_at)
+    return inside
+
+
+def _band(graph: RoadGraph, lane: LaneId, other: LaneId) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """Samples of the midline between `lane` and `other` where they run side by side as one street, each
+    a disc reaching both centre lines (None where they never do)."""
+    a, b = graph.lane_path(lane), graph.lane_path(other)
+    if a is None or b is None:
+        return None
+    n = max(2, int(np.ceil(a.length_m / SAMPLE_M)) + 1)
+    x, y, _, _ = a.sample(np.linspace(0.0, a.length_m, n))
+    s_b, lateral, _ = b.project_points(x, y)
+    fx, fy, _, _ = b.sample(s_b)
+    gap = np.hypot(np.asarray(x) - fx, np.asarray(y) - fy)
+    width = max(graph.network.lane(lane).width_m or DEFAULT_LANE_WIDTH_M,
+                graph.network.lane(other).width_m or DEFAULT_LANE_WIDTH_M)  # fmt: skip
+    p = graph.params
+    # square across (past the other lane's ends the foot point is its end, farther than the offset)
+    keep = (gap >= p.adjacent_min_m) & (gap <= p.adjacent_max_widths * width) & (gap <= np.abs(lateral) + 0.5)
+    if not keep.any():
+        return None
+    mx = 0.5 * (np.asarray(x) + fx)
+    my = 0.5 * (np.asarray(y) + fy)
+    return mx[keep], my[keep], 0.5 * gap[keep]
+
+
+@dataclass(frozen=True)
+class RoadArea:
+    """The corridors' samples (with their half widths) and the zones' polygons of one network."""
+
+    xy: FloatArray  # (n, 2) path samples of every lane and exit
+    half_width_m: FloatArray  # (n,)
+    zones: tuple[FloatArray, ...]  # perimeter polygons (m, 2)
+    tree: cKDTree
+
+    @classmethod
+    def of(cls, graph: RoadGraph) -> RoadArea:
+        xs: list[FloatArray] = []
+        ys: list[FloatArray] = []
+        hws: list[FloatArray] = []
+        for edge in graph.edges((EdgeKind.LANE, EdgeKind.EXIT)):
+            path = edge.path
+            if path.length_m <= 0.0:
+                continue
+            n = max(2, int(np.ceil(path.length_m / SAMPLE_M)) + 1)
+            x, y, _, _ = path.sample(np.linspace(0.0, path.length_m, n))
+            xs.append(np.asarray(x, dtype=float))
+            ys.append(np.asarray(y, dtype=float))
+            hws.append(np.full(n, 0.5 * (edge.lane_width_m or DEFAULT_LANE_WIDTH_M)))
+        if not xs:
+            raise ValueError("road area: the network has no lane with a path")
+        for seg in graph.network.segments:
+            for lane in seg.lanes:
+                for other in seg.lanes:
+                    if other.id != lane.id:
+                        band = _band(graph, lane.id, other.id)
+                        if band is not None:
+                            xs.append(band[0])
+                            ys.append(band[1])
+                            hws.append(band[2])
+        xy = np.column_stack((np.concatenate(xs), np.concatenate(ys)))
+        zones = tuple(
+            np.array([graph.vertex_xy(p.id) for p in zone.perimeter.points], dtype=float)
+            for zone in graph.network.zones
+            if len(zone.perimeter.points) >= 3
+        )
+        return cls(xy, np.concatenate(hws), zones, cKDTree(xy))
+
+    def excess_m(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> FloatArray:
+        """How far each point lies outside the road (<= 0: on a lane, an exit or in a zone)."""
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        pts = np.column_stack((x.ravel(), y.ravel()))
+        k = min(NEIGHBOURS, self.xy.shape[0])
+        dist, idx = self.tree.query(pts, k=k)
+        dist = np.asarray(dist).reshape(pts.shape[0], k)
+        idx = np.asarray(idx).reshape(pts.shape[0], k)
+        excess = np.min(dist - self.half_width_m[idx], axis=1)
+        for poly in self.zones:
+            excess = np.where(polygon_contains(poly, pts[:, 0], pts[:, 1]), np.minimum(excess, 0.0), excess)
+        return excess.reshape(x.shape)
+
+    def off_road(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:
+        """True where a point lies outside the road (the obstacle cells of a map on the road)."""
+        return self.excess_m(x_m, y_m) > 0.0
