@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bywire.hil.world.urban import boxes_overlap  # the plant world's own collision test
+from bywire.hil.world.urban import box, boxes_overlap  # the plant world's own collision test
 from bywire.host.behaviour.behaviour import Behaviour
 from bywire.host.behaviour.context import BehaviourParams
 from bywire.host.behaviour.situation import (
@@ -369,6 +369,14 @@ class Frame:
     speed_mps: float  # signed
     command: BehaviourCommand
     min_gap_m: float  # smallest centre distance to any car minus both half lengths (rough)
+
+
+def corners(f: Frame, params: BehaviourParams | None = None) -> np.ndarray:
+    """The 4 corners (4, 2) of our car's outline at frame `f` (rear-axle pose, the behaviour's size)."""
+    p = params or BehaviourParams()
+    d = p.rear_axle_to_front_m - 0.5 * p.vehicle_length_m  # rear axle to the outline's centre
+    c, s = math.cos(f.heading_rad), math.sin(f.heading_rad)
+    return box(f.x_m + d * c, f.y_m + d * s, f.heading_rad, p.vehicle_length_m, p.vehicle_width_m)
 
 
 class Sim:

@@ -403,6 +403,8 @@ URBAN_HAND_MADE = (
     "host_freeze_in_turn",
     "zone_park_between_cars",
     "maze_zone",
+    "kturn_narrow_road",
+    "blocked_road_no_uturn_edge",
 )
 
 # The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run

@@ -18,11 +18,13 @@ judged against the DARPA Urban Challenge rules the behaviour claims to follow.
   10 Hz from 2 s after engaging, while the behaviour drives a lane or an intersection: not in a lane
   change, passing, K-turn, zone, recovery or replan, nor 5 s after one (those legs leave the lane on
   purpose).
-- `road_departure_m` (`road_departure_at_s`: when): how far a corner of our car ever lay outside the road
+- `road_departure_m` (`road_departure_at_s`: when, `road_departure_xy`: the corner): how far a corner of
+  our car ever lay outside the road
   (every lane and exit a corridor of its RNDF lane width, every zone inside its perimeter:
   `host.roadnet.road_area`), 0 when never; the simulated curbs stand `CURB_GUTTER_M` (0.3 m) outside
   it (`hil.lidar.road_marks`). Judged in every state: a K-turn that swings over the curb is exactly what
   it is for.
+- `direction_changes`: how often our car changed between forward and backward (a three-point turn: 2).
 - `perception` (`perfect` | `lidar`), `perception_tracks`, `perception_false_objects`,
   `perception_missed_objects`, `lane_offset_error_m`: what the host perceived, against the truth
   (`hil.perception_eval`); `lidar_revolutions`, `lidar_dropped` what the simulated sensor sent.
@@ -49,6 +51,7 @@ STUCK_GRACE_S = 10.0  # hil.world.urban.STUCK_GRACE_S
 TIE_S = 0.5
 EXCLUDED_STATES = ("KTurn", "Zone", "Pass", "LaneChange", "Recovery", "Replan", "MissionComplete", "UTurn")
 REJOIN_S = 5.0
+MOVING_MPS = 0.2  # a direction is driven above this speed (slower is the stop at a cusp)
 ENGAGE_SETTLE_S = 2.0
 
 
@@ -126,6 +129,8 @@ def evaluate_urban(
     m["min_separation_m"] = urban.get("min_separation_m")
     m["road_departure_m"] = urban.get("road_departure_m")
     m["road_departure_at_s"] = urban.get("road_departure_at_s")
+    m["road_departure_xy"] = urban.get("road_departure_xy")
+    m["direction_changes"] = direction_changes(plant)
     m["speed_limit_violations"] = len(urban.get("speed_violations", []))
     coll = urban.get("collisions", [])
     m["collisions"] = len(coll)
@@ -182,6 +187,15 @@ def _engaged_from(plant: dict[str, np.ndarray]) -> float | None:
     return float(plant["t_s"][idx[0]]) if idx.size else None
 
 
+def direction_changes(plant: dict[str, np.ndarray]) -> int:
+    """How often our car changed between driving forward and backward (each above `MOVING_MPS`)."""
+    if not plant or "speed_mps" not in plant:
+        return 0
+    v = plant["speed_mps"]
+    signs = np.sign(v[np.abs(v) > MOVING_MPS])
+    return int(np.count_nonzero(np.diff(signs))) if signs.size else 0
+
+
 def final_speed_hold(plant: dict[str, np.ndarray], after_s: float) -> bool:
     """Our car stood (< 0.1 m/s) at every sample from `after_s` on."""
     t = plant["t_s"]
@@ -189,4 +203,4 @@ def final_speed_hold(plant: dict[str, np.ndarray], after_s: float) -> bool:
     return bool(sel.any() and np.all(np.abs(plant["speed_mps"][sel]) < 0.1))
 
 
-__all__ = ["evaluate_urban", "precedence_violations"]
+__all__ = ["direction_changes", "evaluate_urban", "precedence_violations"]

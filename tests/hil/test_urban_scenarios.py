@@ -114,6 +114,13 @@ def test_what_each_scenario_is_about(hand_made: tuple[str, dict[str, Any]]) -> N
         assert leaves(doc)[1:5] == ["ZoneApproach", "ZoneEnter", "ZonePark", "ZoneLeave"]
         assert not {"ZoneRecovery", "GlobalRecovery"} & set(leaves(doc))
         assert m["min_speed_mps"] < -0.2 and m["min_separation_m"] >= 0.3 and m["mission_complete"]
+    elif name in ("kturn_narrow_road", "blocked_road_no_uturn_edge"):
+        # the turn planned on the road: three legs at their cusps, then on along the other lane, no
+        # corner of the car past the curbs (0.3 m outside the lanes), never the recovery states
+        turn = [s for s in leaves(doc) if s.startswith("DriveKTurn")]
+        assert turn[0] == "DriveKTurnPlanning" and turn[-1] == "DriveKTurnFinish" and len(turn) == 4
+        assert not {"DriveRecovery", "GlobalRecovery"} & set(leaves(doc))
+        assert m["road_departure_m"] < 0.3 and m["direction_changes"] == 4 and m["mission_complete"]
     elif name == "host_freeze_in_turn":
         assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True
         assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"

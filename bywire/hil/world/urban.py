@@ -288,6 +288,7 @@ class UrbanWorld:
         self.road = RoadArea.of(self.graph)
         self.road_departure_m = 0.0  # how far a corner of our car was ever off the road (0: never)
         self.road_departure_at_s: float | None = None
+        self.road_departure_xy: tuple[float, float] | None = None  # the corner farthest off
         self._next_track_s = 0.0
         self.tracks: dict[str, list[tuple[float, float, float]]] = {"ego": []}
         self.ego_speed_limit = math.nan
@@ -564,9 +565,11 @@ class UrbanWorld:
         x, y, h, v = self.ego[0], self.ego[1], self.ego[2], self.ego[3]
         cx, cy = self.ego_centre()
         corners = box(cx, cy, h, self.spec.ego_length_m, self.spec.ego_width_m)
-        excess = float(np.max(self.road.excess_m(corners[:, 0], corners[:, 1])))
-        if excess > self.road_departure_m:
-            self.road_departure_m, self.road_departure_at_s = excess, round(t, 2)
+        excess = self.road.excess_m(corners[:, 0], corners[:, 1])
+        k = int(np.argmax(excess))
+        if excess[k] > self.road_departure_m:
+            self.road_departure_m, self.road_departure_at_s = float(excess[k]), round(t, 2)
+            self.road_departure_xy = (round(float(corners[k, 0]), 2), round(float(corners[k, 1]), 2))
         m = self.index.match(x, y, h)
         if m is None:
             self.ego_speed_limit = math.nan
@@ -638,6 +641,7 @@ class UrbanWorld:
             "lateral": [list(r) for r in self.lateral],
             "road_departure_m": round(self.road_departure_m, 3),
             "road_departure_at_s": self.road_departure_at_s,
+            "road_departure_xy": self.road_departure_xy,
             "tracks": {k: [list(r) for r in v] for k, v in self.tracks.items()},
             "intersections": [[i.x_m, i.y_m, i.inside_m] for i in self.intersections],
         }

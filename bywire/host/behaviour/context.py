@@ -22,11 +22,13 @@ from typing import TYPE_CHECKING
 from bywire.host.longitudinal import LongitudinalParams
 from bywire.host.roadnet.graph import Edge, RoadGraph
 from bywire.host.roadnet.lane_index import LaneIndex
+from bywire.host.roadnet.road_area import RoadArea
 from bywire.host.roadnet.route import MissionPlanner
 
 from . import rules
 from .intersection_map import IntersectionMap
-from .manoeuvre import Leg
+from .lanes import AdjacentLane
+from .manoeuvre import STEER_PREVIEW_M, Leg, steering_speed_cap
 from .mtc import MtcResult
 from .route_view import CheckpointMark, PathObject, RouteView
 from .situation import MissionRequest, RequestKind, Situation, TrackedObject
@@ -159,7 +161,9 @@ class BehaviourContext:
         self.manoeuvre_data: dict[str, object] = {}  # per-manoeuvre facts (pass plan, zone targets)
         self.replan_outcome: str | None = None  # "drive", "kturn", "failed" (Replan / GlobalRecovery)
         self.replan_why = ""
-        self.kturn_offset_m: float | None = None
+        # the lane a K-turn turns onto (DriveOnLane at a U-turn, Replan at a blockade; None: find one)
+        self.kturn_target: AdjacentLane | None = None
+        self._road_area: RoadArea | None = None
         self.family_anchor_odometer_m = 0.0  # odometer when a recovery state was entered
         self.odometer_m = 0.0
         self.retrack: Callable[[], None] = lambda: None  # `Behaviour` re-tracks us after a new route
@@ -187,6 +191,13 @@ class BehaviourContext:
     def view(self) -> RouteView:
         assert self.route is not None
         return self.route
+
+    @property
+    def road_area(self) -> RoadArea:
+        """Where the road is (`roadnet.road_area`), made on first use: the K-turn's map."""
+        if self._road_area is None:
+            self._road_area = RoadArea.of(self.graph)
+        return self._road_area
 
     def time_in(self, state: str) -> float:
         assert self.machine is not None
@@ -260,6 +271,19 @@ class BehaviourContext:
 
     def cap(self, speed_mps: float, why: str) -> None:
         self.plan.caps.append((max(speed_mps, 0.0), why))
+
+    def cap_for_steering(self) -> None:
+        """Cap this cycle's speed so the wheels keep up with the leg being driven
+        (`manoeuvre.steering_speed_cap` with the rules' rate and allowance, `STEER_PREVIEW_M` ahead),
+        never below `rules.STEER_CRAWL_MPS`."""
+        if not self.legs:
+            return
+        cap = steering_speed_cap(
+            self.legs[self.leg_index], self.leg_s_m, rules.PASSAT_WHEELBASE_M, rules.STEER_PLAN_RATE_RADPS,
+            rules.STEER_ALLOW_M, STEER_PREVIEW_M,
+        )  # fmt: skip
+        if math.isfinite(cap):
+            self.cap(max(cap, rules.STEER_CRAWL_MPS), "time to steer")
 
     def stop_front_at(self, front_s_m: float, why: str) -> None:
         """Stop with the front bumper at `front_s_m` (route or leg arc length, whichever is driven)."""

@@ -4,7 +4,9 @@
 into) by projecting our position onto each of the segment's other lanes: a lane in our direction lies
 left when we are right of it; an opposite lane lies left when we are left of it (its left is our
 right). It counts when its centre line is 1 m to 2.2 lane widths away (as the road graph's adjacency,
-host/roadnet/graph.py) and runs within 30 deg of parallel (or anti-parallel).
+host/roadnet/graph.py) and runs within 30 deg of parallel (or anti-parallel). `opposite_lane_nearby`
+looks further, for a turn-around where the segment has no such lane: the nearest lane of *any*
+segment to our left that runs the other way alongside us (a street drawn as two one-way segments).
 
 `lane_vehicles` turns the objects matched to a lane (their `LaneRef`, seed 000 Sec. 8) into the MTC's
 `ConflictVehicle`s for one merge point given in that lane's coordinate (its arc length): d_B = MP -
@@ -24,7 +26,7 @@ from .mtc import ConflictVehicle
 from .rules import MtcParams
 from .situation import TrackedObject
 
-__all__ = ["AdjacentLane", "adjacent_left_lane", "lane_position", "lane_vehicles"]
+__all__ = ["AdjacentLane", "adjacent_left_lane", "lane_position", "lane_vehicles", "opposite_lane_nearby"]
 
 _PARALLEL_RAD = math.radians(30.0)
 
@@ -66,6 +68,26 @@ def adjacent_left_lane(
         max_gap = 2.2 * max(width, other.width_m or DEFAULT_LANE_WIDTH_M)
         if 1.0 <= offset <= max_gap and (best is None or offset < best.offset_m):
             best = AdjacentLane(other.id, offset, opposite, proj.s_m)
+    return best
+
+
+def opposite_lane_nearby(
+    graph: RoadGraph, x_m: float, y_m: float, heading_rad: float, max_offset_m: float
+) -> AdjacentLane | None:
+    """The nearest lane of any segment that runs the other way alongside us, its centre line 1 m to
+    `max_offset_m` to our left (None if there is none)."""
+    best: AdjacentLane | None = None
+    for seg in graph.network.segments:
+        for other in seg.lanes:
+            path = graph.lane_path(other.id)
+            if path is None:
+                continue
+            proj = path.project(x_m, y_m, heading_rad=heading_rad)
+            if not (0.0 < proj.s_m < path.length_m) or abs(proj.heading_error_rad) < math.pi - _PARALLEL_RAD:
+                continue
+            offset = proj.lateral_offset_m
+            if 1.0 <= offset <= max_offset_m and (best is None or offset < best.offset_m):
+                best = AdjacentLane(other.id, offset, True, proj.s_m)
     return best
 
 

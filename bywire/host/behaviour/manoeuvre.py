@@ -52,11 +52,13 @@ __all__ = [
     "polyline_leg",
     "quintic_step",
     "shifted_leg",
+    "steering_speed_cap",
 ]
 
 FloatArray = npt.NDArray[np.float64]
 SAMPLE_M = 0.25  # like the road graph's paths
 RUN_ON_M = 1.0  # each leg runs on this far past its end point
+STEER_PREVIEW_M = 8.0  # beyond this a jump of full lock costs nothing at the zone speed (5 m)
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,3 +248,21 @@ def shifted_leg(
     travel = np.unwrap(np.arctan2(np.gradient(py, arc), np.gradient(px, arc)))
     kappa = np.gradient(travel, arc)
     return Leg(px, py, travel, kappa, arc, 1, float(arc[-1]), base)
+
+
+def steering_speed_cap(
+    leg: Leg, s_m: float, wheelbase_m: float, rate_radps: float, allow_m: float, preview_m: float
+) -> float:
+    """The highest speed at which the road wheels, turning at `rate_radps` from the angle the leg asks
+    for at `s_m`, reach every angle it asks for within `preview_m` ahead no later than `allow_m` past
+    where it asks for it (inf where it asks for no change). A leg's curvature is the steering curvature
+    tan(delta) / l, so delta = atan(l kappa)."""
+    ahead = (leg.s >= s_m) & (leg.s <= s_m + preview_m)
+    if not ahead.any():
+        return math.inf
+    now = math.atan(wheelbase_m * float(np.interp(s_m, leg.s, leg.kappa)))
+    turn_s = np.abs(np.arctan(wheelbase_m * leg.kappa[ahead]) - now) / rate_radps
+    room_m = leg.s[ahead] - s_m + allow_m
+    need = turn_s > 1e-9
+    return float(np.min(room_m[need] / turn_s[need])) if need.any() else math.inf
+

@@ -27,7 +27,7 @@ import itertools
 import math
 from collections.abc import Generator
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -42,12 +42,15 @@ from .manoeuvre import Leg, path_leg
 from .situation import Direction
 
 __all__ = [
-    "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs", "blank_map", "footprint",
-    "legs_of", "make_request", "obstacles_on", "solve", "solve_steps",
+    "ROAD_EDGE_SLACK_M", "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs",
+    "blank_map", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of", "solve", "solve_steps",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
 ZONE_MARGIN_M = 0.3
+# a road's edge on a planner's map lies this far outside the lanes' painted edge: the margin is for what
+# stands, and against the edge the car keeps 0.1 m inside the line, 0.4 m off a curb (0.3 m outside it)
+ROAD_EDGE_SLACK_M = 0.2
 ZONE_MARGIN_TIGHT_M = 0.1
 # a metre backwards costs this many forwards: a driver backs out of a spot and turns, and does not
 # reverse the length of the lot because that is a few metres shorter
@@ -144,6 +147,10 @@ class PlanRequest:
     # where the usual search graph finds nothing: a last try at the tight margin on a finer one (short
     # arcs, a finer closed set: many short legs in a street little wider than the car is long)
     fine: bool = False
+    reverse_factor: float = 2.5  # ZONE_REVERSE_FACTOR: a metre backwards costs this many forwards
+    # +1 / -1: the motion at the start and after the goal (`PlannerParams`: the other way costs a change)
+    start_direction: float = 0.0
+    goal_direction: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -193,6 +200,13 @@ class InlinePathPlanner:
         return None
 
 
+def planner_of(ctx: BehaviourContext) -> PathPlanner:
+    """The behaviour's planner: the one the host gave it, else an `InlinePathPlanner` made now."""
+    if ctx.path_planner is None:
+        ctx.path_planner = InlinePathPlanner()
+    return cast(PathPlanner, ctx.path_planner)
+
+
 def make_request(
     ctx: BehaviourContext,
     grid: GridMap,
@@ -201,6 +215,8 @@ def make_request(
     back_out_m: float = 0.0,
     forward_via: tuple[Pose, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     fine: bool = False,
+    reverse_factor: float = ZONE_REVERSE_FACTOR,
+    directions: tuple[float, float] = (0.0, 0.0),
 ) -> PlanRequest:
     """The request for a plan from our pose to `goal` on `grid` (see `solve`)."""
     if abs(grid.resolution_m - ZONE_CELL_M) > 1e-9:
@@ -208,7 +224,7 @@ def make_request(
     ego = ctx.situation.ego
     return PlanRequest(
         grid.occupied, grid.origin_xy_m, footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
-        back_out_m, forward_via, fine,
+        back_out_m, forward_via, fine, reverse_factor, *directions,
     )  # fmt: skip
 
 
@@ -263,9 +279,13 @@ def _plan_to(
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
 ) -> Generator[object, None, PlanReply]:
     """One goal of `solve_steps`: at the wide margin, else the tight one; `first` driven before it."""
-    tries = [(ZONE_MARGIN_M, SEARCH), (ZONE_MARGIN_TIGHT_M, SEARCH)]
+    def mine(params: PlannerParams) -> PlannerParams:
+        return replace(params, reverse_factor=req.reverse_factor, start_direction=req.start_direction,
+                       goal_direction=req.goal_direction)  # fmt: skip
+
+    tries = [(ZONE_MARGIN_M, mine(SEARCH)), (ZONE_MARGIN_TIGHT_M, mine(SEARCH))]
     if req.fine:
-        tries.append((ZONE_MARGIN_TIGHT_M, FINE_SEARCH))
+        tries.append((ZONE_MARGIN_TIGHT_M, mine(FINE_SEARCH)))
     reason = ""
     for margin, params in tries:
         cs = yield from _cspace(grid, req.footprint, margin, maps)

@@ -100,6 +100,9 @@ __all__ = [
     "SPEED_ANTICIPATION_DECEL_MPS2",
     "SPEED_LIMIT_MAX_MPS",
     "SPOT_SPEED_MPS",
+    "STEER_ALLOW_M",
+    "STEER_CRAWL_MPS",
+    "STEER_PLAN_RATE_RADPS",
     "STILL_DISPLACEMENT_M",
     "STILL_SPEED_MPS",
     "STOOD_BEHIND_MAX_GAP_M",
@@ -204,6 +207,14 @@ SPOT_SPEED_MPS: Final = 0.5 * ZONE_SPEED_MAX_MPS  # ours: into and out of a park
 KTURN_SPEED_MPS: Final = 1.5  # ours (AnnieWAY code: 2 m/s); each leg ends in a stop
 PASS_SPEED_MPS: Final = 3.0  # ours: the 12 m shift below peaks at 1.3 m/s² lateral at this speed
 RECOVERY_CREEP_SPEED_MPS: Final = 1.0  # ours: a recovery moves at walking pace
+# Time to steer (ours): a planned path's curvature may jump (a Reeds-Shepp shot from full left to full
+# right lock); the car slows so that its wheels, turning at STEER_PLAN_RATE_RADPS (half the Passat's
+# 0.7 rad/s road-wheel limit: the rest is the controller's), reach each angle ahead within
+# STEER_ALLOW_M past where the path asks for it, down to STEER_CRAWL_MPS. At the zone speed the jump
+# of the parking lot's exit left the car 1.3 m off its path and 0.7 m over the lane's edge.
+STEER_PLAN_RATE_RADPS: Final = 0.35
+STEER_ALLOW_M: Final = 0.5
+STEER_CRAWL_MPS: Final = 0.4
 
 # Standstill and stillness. A vehicle "has stopped" below 0.2 m/s (AnnieWAY code: 0.1 m/s; ours doubles
 # it for the speed noise of a tracker); an object is "still" while slower than 0.3 m/s and within 1 m

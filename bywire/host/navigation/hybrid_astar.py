@@ -8,7 +8,9 @@ replaces the old one: Autoware's users asked for exactly this, autoware_universe
 search's optimum is not lost to the order of expansion.
 
 Edge cost: arc length, times `reverse_factor` backwards, plus `direction_change_m` per change of
-direction, plus `steer_change_weight` x |kappa change| x R and `steer_weight` x |kappa| x R x arc (every
+direction (also against the motion the car is in at the start and must go on in after the goal, where
+`start_direction` / `goal_direction` give them: a K-turn begins and ends driving forward), plus
+`steer_change_weight` x |kappa change| x R and `steer_weight` x |kappa| x R x arc (every
 term >= the arc length it covers, so the admissible heuristics stay admissible for the cost).
 
 Cost-to-go: the maximum of the Reeds-Shepp length and the obstacle-aware free-space distance
@@ -68,6 +70,10 @@ class PlannerParams:
     closed_headings: int = 72  # heading bins of the closed set
     max_expansions: int = 100_000
     sample_step_m: float | None = None  # collision samples along an edge; None: half the map's cell
+    # +1 / -1: the motion the car is in at the start (a first edge the other way costs a direction
+    # change), and the one it goes on in after the goal (a path arriving the other way costs one); 0: free
+    start_direction: float = 0.0
+    goal_direction: float = 0.0
 
 
 @dataclass
@@ -129,7 +135,11 @@ def _edge_samples(prims: MotionPrimitives, steer: int, pose: Pose) -> np.ndarray
     return out
 
 
-def _rs_cost(path: reeds_shepp.RsPath, radius_m: float, params: PlannerParams, last_dir: float) -> float:
+def _rs_cost(
+    path: reeds_shepp.RsPath, radius_m: float, params: PlannerParams, last_dir: float, goal_dir: float = 0.0
+) -> float:
+    """The search's cost of a Reeds-Shepp path driven on from a node reached in `last_dir`, the
+    direction change at the goal included where it must go on in `goal_dir`."""
     cost = 0.0
     d_prev = last_dir
     for seg in path.segments:
@@ -143,6 +153,8 @@ def _rs_cost(path: reeds_shepp.RsPath, radius_m: float, params: PlannerParams, l
         if d_prev != 0.0 and d != d_prev:
             cost += params.direction_change_m
         d_prev = d
+    if goal_dir != 0.0 and d_prev != 0.0 and d_prev != goal_dir:
+        cost += params.direction_change_m
     return cost
 
 
@@ -254,7 +266,7 @@ def search(
 
     nodes = _Nodes()
     mid = p.n_steer // 2
-    root = nodes.add(start, mid, 0.0, 0.0, -1, -1)
+    root = nodes.add(start, mid, float(p.start_direction), 0.0, -1, -1)
     best_g: dict[int, float] = {key_of(start): 0.0}
     heap: list[tuple[float, int, int]] = [(0.0, 0, root)]
     tie = 1
@@ -289,7 +301,7 @@ def search(
         if dist <= p.shot_range_m and (exhaustive or near or expansions % p.shot_every == 1):
             shot = _shot(cspace, pose, goal, radius, step, p.shot_candidates if exhaustive or near else 1)
             if shot is not None:
-                c = g + _rs_cost(shot, radius, p, nodes.dir[nid])
+                c = g + _rs_cost(shot, radius, p, nodes.dir[nid], p.goal_direction)
                 if best is None or c < best[0]:
                     best = (c, nid, shot)
                 if not exhaustive:

@@ -52,6 +52,19 @@ def polygon_contains(poly: FloatArray, x: FloatArray, y: FloatArray) -> BoolArra
     return inside
 
 
+def _outside_m(poly: FloatArray, x: FloatArray, y: FloatArray) -> FloatArray:
+    """How far each point lies outside the polygon (0 inside): its distance to the nearest edge."""
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    d = b - a
+    lengths2 = np.maximum((d**2).sum(axis=1), 1e-12)
+    px = x[:, None] - a[None, :, 0]
+    py = y[:, None] - a[None, :, 1]
+    u = np.clip((px * d[None, :, 0] + py * d[None, :, 1]) / lengths2[None, :], 0.0, 1.0)
+    gap = np.hypot(px - u * d[None, :, 0], py - u * d[None, :, 1]).min(axis=1)
+    return np.where(polygon_contains(poly, x, y), 0.0, gap)
+
+
 def _band(graph: RoadGraph, lane: LaneId, other: LaneId) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Samples of the midline between `lane` and `other` where they run side by side as one street, each
     a disc reaching both centre lines (None where they never do)."""
@@ -128,7 +141,7 @@ class RoadArea:
         idx = np.asarray(idx).reshape(pts.shape[0], k)
         excess = np.min(dist - self.half_width_m[idx], axis=1)
         for poly in self.zones:
-            excess = np.where(polygon_contains(poly, pts[:, 0], pts[:, 1]), np.minimum(excess, 0.0), excess)
+            excess = np.minimum(excess, _outside_m(poly, pts[:, 0], pts[:, 1]))
         return excess.reshape(x.shape)
 
     def off_road(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:

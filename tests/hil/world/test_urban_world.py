@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bywire.hil.scenario import ScenarioError, builtin_scenarios, load_scenario, parse_scenario
-from bywire.hil.urban_eval import precedence_violations
+from bywire.hil.urban_eval import direction_changes, precedence_violations
 from bywire.hil.world.urban import UrbanWorld, box, box_distance, boxes_overlap
 from bywire.hil.world.urban_spec import resolve_data_path, shared_data_root
 
@@ -170,3 +170,28 @@ def test_the_smallest_separation_is_a_distance_not_a_bound() -> None:
     exact = min(box_distance(ours, box(c.x_m, c.y_m, c.heading_rad, c.length_m, c.width_m)) for c in w.cars)
     assert w.min_separation_m == pytest.approx(exact, abs=1e-9)
     assert w.min_separation_to == "wall" and 1.5 < exact < 2.5
+
+
+def test_the_road_departure_is_the_farthest_corner_off_the_road() -> None:
+    """Our car on its lane books nothing; turned across the dead end's 9.1 m street its nose reaches
+    past the far lane's edge, and the booking is that corner's distance off the road."""
+    sc = load_scenario("kturn_narrow_road")
+    assert sc.urban is not None
+    w = UrbanWorld(sc.urban)  # the rear axle starts at (0, 0) heading east; lanes y = 0 and 4.572, 15 ft
+    w.step(0.0, 60.0, 0.0, 0.0, 0.0, 0.0)
+    assert w.summary()["road_departure_m"] == 0.0
+    # rear axle at (61.42, 1.0) turned north: the front bumper at y = 4.67, its corners past the edge
+    # of the far lane (y = 4.572 + 2.286 = 6.858) by nothing yet; 3 m further north by 1.81 m
+    w.step(0.1, 60.0 + 1.42, 1.0 + 1.42 + 3.0, math.pi / 2, 0.0, 0.0)
+    _, ry, _ = w.ego_from_fmu(60.0 + 1.42, 1.0 + 1.42 + 3.0, math.pi / 2)
+    front = ry + 2.72 + 0.95
+    summary = w.summary()
+    assert summary["road_departure_m"] == pytest.approx(front - (4.572 + 7.5 * 0.3048), abs=0.03)
+    assert summary["road_departure_at_s"] == 0.1
+    assert summary["road_departure_xy"][1] == pytest.approx(front, abs=0.01)
+
+
+def test_direction_changes_count_forward_backward_switches() -> None:
+    v = np.array([0.0, 1.0, 2.0, 0.1, -0.1, -1.0, -0.05, 0.05, 1.5, 0.0])
+    assert direction_changes({"speed_mps": v}) == 2
+    assert direction_changes({"speed_mps": np.zeros(5)}) == 0

@@ -6,6 +6,7 @@ global one."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -15,6 +16,7 @@ from hsm_sim import (
     W,
     car_on,
     constant,
+    corners,
     cross_network,
     parked,
     ring_network,
@@ -24,6 +26,7 @@ from hsm_sim import (
 from bywire.host.behaviour import rules
 from bywire.host.behaviour.situation import BlockedRoad, EgoState, RequestKind, TrackedObject
 from bywire.host.roadnet.graph import EdgeKind
+from bywire.host.roadnet.road_area import RoadArea
 
 FRONT = rules.PASSAT_REAR_AXLE_TO_FRONT_M
 LANE_1_1 = ["1.1.1", "1.1.2", "1.1.3", "1.1.4", "1.1.5", "1.1.6", "1.1.7"]
@@ -157,8 +160,17 @@ def test_blocked_road_kturn_and_replan(blocked) -> None:  # type: ignore[no-unty
     detect = next(f for f in sim.frames if f.command.requests)
     assert detect.t_s == pytest.approx(stop.t_s + rules.BLOCKADE_STILL_S, abs=1.0)
     leaves = sim.leaves()
-    i = leaves.index("DriveKTurnForward")
-    assert leaves[i : i + 4] == ["DriveKTurnForward", "DriveKTurnBackward", "DriveKTurnFinish", "DriveOnLane"]
+    # planned on the road: legs alternating forward and backward at their cusps, the last into the lane
+    i = leaves.index("DriveKTurnPlanning")
+    j = leaves.index("DriveKTurnFinish", i)
+    turn = leaves[i + 1 : j]
+    assert turn[0] == "DriveKTurnForward" and len(turn) >= 2
+    assert all(a != b for a, b in itertools.pairwise(turn))
+    assert leaves[j + 1] == "DriveOnLane"
+    # a 7.7 m street (two 12 ft lanes 4 m apart): no corner of the car reached a curb (0.3 m outside)
+    area = RoadArea.of(net.graph)
+    worst = max(float(area.excess_m(*corners(f).T).max()) for f in sim.frames)
+    assert worst < 0.3
     backward = [f for f in sim.frames if f.state.endswith("DriveKTurnBackward")]
     assert all(f.command.direction == -1 for f in backward) and min(f.speed_mps for f in backward) < -0.5
     replans = [r for r in requests if r.kind == RequestKind.REPLAN]

@@ -73,7 +73,7 @@ def _at_kturn(ctx: BehaviourContext) -> bool:
     side = adjacent_left_lane(ctx.graph, edge.lane, x, y, h)
     if side is None or not side.opposite:
         return False
-    ctx.kturn_offset_m = side.offset_m
+    ctx.kturn_target = side
     return True
 
 

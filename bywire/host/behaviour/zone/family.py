@@ -3,7 +3,8 @@ the substates.
 
 On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
 followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) and
-the next one begun; reversing is at spot speed; never past the plan's end; stopped short of a planned
+the next one begun; reversing is at spot speed; slower where the path's curvature jumps
+(`BehaviourContext.cap_for_steering`); never past the plan's end; stopped short of a planned
 leg's end for `ZONE_REPLAN_STALL_S`, the way to the target is planned again from where we stand (seed
 000 Sec. 10's replanning). The family leaves to Drive once the rear axle is past the perimeter exit
 (route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
@@ -84,6 +85,7 @@ def _follow(ctx: BehaviourContext) -> None:
         ctx.plan.leg = ctx.legs[ctx.leg_index]
         ctx.plan.leg_s_m = ctx.leg_s_m
         ctx.plan.profile = False
+        ctx.cap_for_steering()
     ctx.cap(zone_speed(ctx), "zone speed")
 
 

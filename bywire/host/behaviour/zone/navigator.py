@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 
@@ -26,7 +25,7 @@ from bywire.host.roadnet.ids import WaypointId
 from .. import rules
 from ..context import BehaviourContext
 from ..manoeuvre import Leg, polyline_leg
-from ..path_planning import InlinePathPlanner, PathPlanner, PlannedLegs, legs_of, make_request
+from ..path_planning import PlannedLegs, legs_of, make_request, planner_of
 from .zone_map import goal_in_spot, zone_map
 
 __all__ = ["ZoneNavigator", "ZoneTarget", "front_in_spot", "navigator", "take_planned_legs", "zone_speed"]
@@ -160,13 +159,7 @@ class ZoneNavigator:
             back_out_m = math.hypot(x2 - x1, y2 - y1) + rules.ZONE_BACK_OUT_MARGIN_M  # front clear of it
         self.replanning = not back_out and self.planned
         request = make_request(ctx, zone_map(ctx, self.zone_id), goal, then, back_out_m, forward_via)
-        self.pending = self.planner(ctx).submit(request)
-
-    @staticmethod
-    def planner(ctx: BehaviourContext) -> PathPlanner:
-        if ctx.path_planner is None:
-            ctx.path_planner = InlinePathPlanner()
-        return cast(PathPlanner, ctx.path_planner)
+        self.pending = planner_of(ctx).submit(request)
 
     def poll_legs(self, ctx: BehaviourContext) -> tuple[Leg, ...] | None:
         """The requested legs once the planner has them (None: still planning). Where it found none, the
@@ -174,7 +167,7 @@ class ZoneNavigator:
         replan that finds none gives no legs (the ones being driven stay)."""
         if self.pending is None:
             return None
-        reply = self.planner(ctx).poll(self.pending)
+        reply = planner_of(ctx).poll(self.pending)
         if reply is None:
             return None
         self.pending = None

@@ -1,9 +1,12 @@
 """The obstacle map of a zone (seed 000 Sec. 10) and the pose that parks us in a spot.
 
 `zone_map`: a grid of `path_planning.ZONE_CELL_M` over the perimeter's bounding box and `MAP_PAD_M`
-around it; outside the perimeter polygon is an obstacle (the car stays in the zone), except within
-`GATE_OPEN_M` of the perimeter points where lanes enter and leave (the car's tail is still on the road at
-the entry, its nose already on it at the exit); what stands in it is put on by `path_planning.obstacles_on`.
+around it; outside the perimeter polygon is an obstacle (the car stays in the zone), except the road
+within `GATE_OPEN_M` of the perimeter points where lanes enter and leave (the car's tail is still on
+the lane or exit at the entry, its nose already on it at the exit: `roadnet.road_area`, its edge taken
+`path_planning.ROAD_EDGE_SLACK_M` out as for a K-turn); what stands in it is put on by
+`path_planning.obstacles_on`. (Opening everything near a gate let the path cut the corner between the
+road and the perimeter: 2 m off the road at the DARPA sample's zone 14.)
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from bywire.host.roadnet.ids import WaypointId
 from bywire.host.roadnet.road_area import polygon_contains
 
 from ..context import BehaviourContext
-from ..path_planning import Pose, blank_map, obstacles_on
+from ..path_planning import ROAD_EDGE_SLACK_M, Pose, blank_map, obstacles_on
 
 __all__ = ["goal_in_spot", "zone_map"]
 
@@ -38,9 +41,15 @@ def zone_map(ctx: BehaviourContext, zone_id: int) -> GridMap:
     gates = {ex.exit for ex in zone.perimeter.exits} | {
         ex.entry for ex in ctx.graph.network.exits() if ex.entry.segment == zone_id
     }
+    near_gate = np.zeros_like(blocked)
     for g in gates:
         gx, gy = ctx.graph.vertex_xy(g)
-        blocked &= np.hypot(cx - gx, cy - gy) > GATE_OPEN_M
+        near_gate |= np.hypot(cx - gx, cy - gy) <= GATE_OPEN_M
+    if near_gate.any():
+        road = ctx.road_area.excess_m(cx[near_gate], cy[near_gate]) <= ROAD_EDGE_SLACK_M
+        open_ = np.zeros_like(blocked)
+        open_[near_gate] = road
+        blocked &= ~open_
     return obstacles_on(ctx, GridMap(blocked, grid.resolution_m, grid.origin_xy_m))
 
 
