@@ -24,6 +24,10 @@ judged against the DARPA Urban Challenge rules the behaviour claims to follow.
   `host.roadnet.road_area`), 0 when never; the simulated curbs stand `CURB_GUTTER_M` (0.3 m) outside
   it (`hil.lidar.road_marks`). Judged in every state: a K-turn that swings over the curb is exactly what
   it is for.
+- `lane_departure_m` (`lane_departure_at_s`): how far a corner of our car lay outside the lanes and exits
+  running its way (into the oncoming lane or over the edge), while the behaviour drives a lane or an
+  intersection (the states and times of the lateral error: a K-turn, a pass, a lane change or a zone
+  leave the lane on purpose); 0: never.
 - `direction_changes`: how often our car changed between forward and backward (a three-point turn: 2).
 - `perception` (`perfect` | `lidar`), `perception_tracks`, `perception_false_objects`,
   `perception_missed_objects`, `lane_offset_error_m`: what the host perceived, against the truth
@@ -153,6 +157,17 @@ def evaluate_urban(
             m["lateral_error_max_m"] = round(float(np.max(np.abs(d[keep]))), 4)
             m["lateral_error_max_at_s"] = round(float(t[keep][np.argmax(np.abs(d[keep]))]), 2)
             m["lateral_error_samples"] = int(keep.sum())
+    own = urban.get("own_side", [])
+    m["lane_departure_m"] = None
+    if own:
+        arr = np.array(own, dtype=float).reshape(-1, 2)
+        keep = ~_excluded_mask(arr[:, 0], states, float(arr[-1, 0]))
+        engaged_t = _engaged_from(plant)
+        keep &= arr[:, 0] >= (engaged_t if engaged_t is not None else np.inf)
+        if keep.any():
+            k = int(np.argmax(np.where(keep, arr[:, 1], -1.0)))
+            m["lane_departure_m"] = round(float(arr[k, 1]), 3)
+            m["lane_departure_at_s"] = round(float(arr[k, 0]), 2)
     if scenario.fault_ref_s is not None:
         before = [s for t, s in states if t <= scenario.fault_ref_s]
         m["hsm_state_at_fault"] = before[-1] if before else None

@@ -23,8 +23,8 @@ vehicle (precedence), our stop-line stops (front bumper vs line), box-to-box sep
 every other car and collisions of every pair (separating axes), MDF checkpoints passed in order (front
 bumper or car centre within `CHECKPOINT_TOLERANCE_M`), the speed limit of the lane we are on, our rear
 axle's lateral offset from the nearest lane/exit, how far a corner of our car ever left the road (the
-lanes and exits at their RNDF widths and the zones, `host.roadnet.road_area`), and the tracks for the
-report.
+lanes and exits at their RNDF widths and the zones, `host.roadnet.road_area`) and, every sample, its own
+side of it (the lanes and exits running its way), and the tracks for the report.
 """
 
 from __future__ import annotations
@@ -289,6 +289,9 @@ class UrbanWorld:
         self.road_departure_m = 0.0  # how far a corner of our car was ever off the road (0: never)
         self.road_departure_at_s: float | None = None
         self.road_departure_xy: tuple[float, float] | None = None  # the corner farthest off
+        # (t, how far a corner lay outside the lanes and exits running our way), judged by the evaluation
+        # outside the manoeuvres that leave the lane on purpose
+        self.own_side: list[tuple[float, float]] = []
         self._next_track_s = 0.0
         self.tracks: dict[str, list[tuple[float, float, float]]] = {"ego": []}
         self.ego_speed_limit = math.nan
@@ -565,6 +568,8 @@ class UrbanWorld:
         x, y, h, v = self.ego[0], self.ego[1], self.ego[2], self.ego[3]
         cx, cy = self.ego_centre()
         corners = box(cx, cy, h, self.spec.ego_length_m, self.spec.ego_width_m)
+        own = self.road.excess_m(corners[:, 0], corners[:, 1], h)
+        self.own_side.append((round(t, 2), round(max(float(np.max(own)), 0.0), 3)))
         excess = self.road.excess_m(corners[:, 0], corners[:, 1])
         k = int(np.argmax(excess))
         if excess[k] > self.road_departure_m:
@@ -642,6 +647,7 @@ class UrbanWorld:
             "road_departure_m": round(self.road_departure_m, 3),
             "road_departure_at_s": self.road_departure_at_s,
             "road_departure_xy": self.road_departure_xy,
+            "own_side": [list(r) for r in self.own_side],
             "tracks": {k: [list(r) for r in v] for k, v in self.tracks.items()},
             "intersections": [[i.x_m, i.y_m, i.inside_m] for i in self.intersections],
         }

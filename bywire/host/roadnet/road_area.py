@@ -14,12 +14,17 @@ lane's edge counts). A lane's end is rounded (a half disc of its half width past
 the RNDF says nothing of what lies beyond, and a dead end's last waypoint is where a car stops with
 its bumper, not where the asphalt ends.
 
+With a heading, `excess_m` measures against the lanes and exits running that way only: how far a car has
+strayed from its own side of the road (into the oncoming lane, where no curb stops it). `of_paths` makes
+the area of a few paths alone (a manoeuvre's own lanes).
+
 Derived edges (lane changes, K-turns, zone edges) add nothing: they lie within the lanes and zones they
 join or are the placeholder geometry of a manoeuvre planned here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,13 +33,16 @@ from scipy.spatial import cKDTree
 
 from .graph import DEFAULT_LANE_WIDTH_M, EdgeKind, RoadGraph
 from .ids import LaneId
+from .path import Path
 
 __all__ = ["RoadArea", "polygon_contains"]
 
 SAMPLE_M = 0.25
 NEIGHBOURS = 8
+SECTORS = 16  # a heading picks the sector nearest it: "running our way" is within 90 +- 11 deg
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
 
 
@@ -50,6 +58,17 @@ def polygon_contains(poly: FloatArray, x: FloatArray, y: FloatArray) -> BoolArra
             x_at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         inside ^= crosses & (x < x_at)
     return inside
+
+
+def _corridor(path: Path, width_m: float | None) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Samples (x, y, half width, heading) of a path every `SAMPLE_M`, the lane's width around it."""
+    if path.length_m <= 0.0:
+        e = np.zeros(0)
+        return e, e, e, e
+    n = max(2, int(np.ceil(path.length_m / SAMPLE_M)) + 1)
+    x, y, h, _ = path.sample(np.linspace(0.0, path.length_m, n))
+    half = np.full(n, 0.5 * (width_m or DEFAULT_LANE_WIDTH_M))
+    return np.asarray(x, dtype=float), np.asarray(y, dtype=float), half, np.asarray(h, dtype=float)
 
 
 def _outside_m(poly: FloatArray, x: FloatArray, y: FloatArray) -> FloatArray:
@@ -90,28 +109,22 @@ def _band(graph: RoadGraph, lane: LaneId, other: LaneId) -> tuple[FloatArray, Fl
 
 @dataclass(frozen=True)
 class RoadArea:
-    """The corridors' samples (with their half widths) and the zones' polygons of one network."""
+    """The corridors' samples (with their half widths and directions) and the zones' polygons."""
 
-    xy: FloatArray  # (n, 2) path samples of every lane and exit
+    xy: FloatArray  # (n, 2) path samples of every lane and exit, and of the bands between lanes
     half_width_m: FloatArray  # (n,)
+    heading_rad: FloatArray  # (n,) the direction traffic runs at the sample; NaN in a band (both ways)
     zones: tuple[FloatArray, ...]  # perimeter polygons (m, 2)
     tree: cKDTree
+    # per heading sector (SECTORS around the circle): the samples running within 90 deg of its centre
+    sector_index: tuple[IntArray, ...]
+    sector_tree: tuple[cKDTree, ...]
 
     @classmethod
     def of(cls, graph: RoadGraph) -> RoadArea:
-        xs: list[FloatArray] = []
-        ys: list[FloatArray] = []
-        hws: list[FloatArray] = []
-        for edge in graph.edges((EdgeKind.LANE, EdgeKind.EXIT)):
-            path = edge.path
-            if path.length_m <= 0.0:
-                continue
-            n = max(2, int(np.ceil(path.length_m / SAMPLE_M)) + 1)
-            x, y, _, _ = path.sample(np.linspace(0.0, path.length_m, n))
-            xs.append(np.asarray(x, dtype=float))
-            ys.append(np.asarray(y, dtype=float))
-            hws.append(np.full(n, 0.5 * (edge.lane_width_m or DEFAULT_LANE_WIDTH_M)))
-        if not xs:
+        """Every lane and exit of `graph`, the bands between lanes, the zones (see the module docstring)."""
+        parts = [_corridor(e.path, e.lane_width_m) for e in graph.edges((EdgeKind.LANE, EdgeKind.EXIT))]
+        if not any(p[0].size for p in parts):
             raise ValueError("road area: the network has no lane with a path")
         for seg in graph.network.segments:
             for lane in seg.lanes:
@@ -119,26 +132,58 @@ class RoadArea:
                     if other.id != lane.id:
                         band = _band(graph, lane.id, other.id)
                         if band is not None:
-                            xs.append(band[0])
-                            ys.append(band[1])
-                            hws.append(band[2])
-        xy = np.column_stack((np.concatenate(xs), np.concatenate(ys)))
+                            parts.append((*band, np.full(band[0].size, np.nan)))
         zones = tuple(
             np.array([graph.vertex_xy(p.id) for p in zone.perimeter.points], dtype=float)
             for zone in graph.network.zones
             if len(zone.perimeter.points) >= 3
         )
-        return cls(xy, np.concatenate(hws), zones, cKDTree(xy))
+        return cls._of_parts(parts, zones)
 
-    def excess_m(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> FloatArray:
-        """How far each point lies outside the road (<= 0: on a lane, an exit or in a zone)."""
+    @classmethod
+    def of_paths(cls, corridors: Sequence[tuple[Path, float | None]]) -> RoadArea:
+        """Only the given paths, each a corridor of its lane width (a manoeuvre's own lanes)."""
+        parts = [_corridor(path, width) for path, width in corridors]
+        if not any(p[0].size for p in parts):
+            raise ValueError("road area: no path with a length")
+        return cls._of_parts(parts, ())
+
+    @classmethod
+    def _of_parts(
+        cls, parts: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]], zones: tuple[FloatArray, ...]
+    ) -> RoadArea:
+        x, y, hw, h = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        xy = np.column_stack((x, y))
+        index: list[IntArray] = []
+        for j in range(SECTORS):
+            with np.errstate(invalid="ignore"):
+                ours = np.cos(h - 2.0 * np.pi * j / SECTORS) > 0.0
+            index.append(np.flatnonzero(ours) if ours.any() else np.arange(0))
+        trees = tuple(cKDTree(xy[i] if i.size else np.zeros((1, 2))) for i in index)  # empty: never queried
+        return cls(xy, hw, h, zones, cKDTree(xy), tuple(index), trees)
+
+    def excess_m(
+        self, x_m: npt.ArrayLike, y_m: npt.ArrayLike, heading_rad: float | None = None
+    ) -> FloatArray:
+        """How far each point lies outside the road (<= 0: on a lane, an exit or in a zone). With
+        `heading_rad`, outside the lanes and exits that run that way (within 90 deg; not the bands
+        between lanes): how far a car heading so has strayed from its own side of the road."""
         x = np.asarray(x_m, dtype=float)
         y = np.asarray(y_m, dtype=float)
         pts = np.column_stack((x.ravel(), y.ravel()))
-        k = min(NEIGHBOURS, self.xy.shape[0])
-        dist, idx = self.tree.query(pts, k=k)
+        if heading_rad is None:
+            tree, of = self.tree, None
+        else:
+            j = round(heading_rad * SECTORS / (2.0 * np.pi)) % SECTORS
+            tree, of = self.sector_tree[j], self.sector_index[j]
+            if not of.size:
+                return np.full(x.shape, np.inf)
+        k = min(NEIGHBOURS, tree.n)
+        dist, idx = tree.query(pts, k=k)
         dist = np.asarray(dist).reshape(pts.shape[0], k)
         idx = np.asarray(idx).reshape(pts.shape[0], k)
+        if of is not None:
+            idx = of[idx]
         excess = np.min(dist - self.half_width_m[idx], axis=1)
         for poly in self.zones:
             excess = np.minimum(excess, _outside_m(poly, pts[:, 0], pts[:, 1]))

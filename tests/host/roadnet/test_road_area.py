@@ -61,3 +61,24 @@ def test_polygon_contains_is_even_odd() -> None:
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
     got = polygon_contains(square, np.array([1.0, 3.0, -0.5, 1.9]), np.array([1.0, 1.0, 1.0, 0.1]))
     assert got.tolist() == [True, False, False, True]
+
+
+def test_with_a_heading_only_the_lanes_running_that_way_count() -> None:
+    area = _area("parking_lot")  # 1.1 eastbound along y = 0, 1.2 westbound along y = -3.66, 12 ft each
+    half = 6 * FT
+    x, y = np.array([-30.0]), np.array([-3.66])
+    assert area.excess_m(x, y)[0] < 0.0  # on the road ...
+    # ... but in the oncoming lane for a car heading east: its own lane's edge is 3.66 - 1.83 m away
+    assert area.excess_m(x, y, 0.0)[0] == pytest.approx(3.66 - half, abs=0.02)
+    assert area.excess_m(x, y, np.pi)[0] < 0.0  # a car heading west is in its lane
+    assert area.excess_m(np.array([-30.0]), np.array([0.5]), 0.2)[0] < 0.0
+
+
+def test_an_area_of_a_few_paths_is_only_theirs() -> None:
+    graph, _ = load_network(str(NETWORKS / "parking_lot.rndf"), str(NETWORKS / "parking_lot.mdf"))
+    lane = graph.lane_path(next(iter(graph.network.segments[0].lanes)).id)
+    assert lane is not None
+    area = RoadArea.of_paths([(lane, 3.0)])
+    assert area.excess_m(np.array([-30.0, -30.0]), np.array([1.0, -3.66])).tolist() == pytest.approx(
+        [-0.5, 2.16], abs=0.02
+    )
