@@ -265,4 +265,3 @@ def steering_speed_cap(
     room_m = leg.s[ahead] - s_m + allow_m
     need = turn_s > 1e-9
     return float(np.min(room_m[need] / turn_s[need])) if need.any() else math.inf
-

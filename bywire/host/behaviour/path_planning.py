@@ -279,6 +279,7 @@ def _plan_to(
     then: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
 ) -> Generator[object, None, PlanReply]:
     """One goal of `solve_steps`: at the wide margin, else the tight one; `first` driven before it."""
+
     def mine(params: PlannerParams) -> PlannerParams:
         return replace(params, reverse_factor=req.reverse_factor, start_direction=req.start_direction,
                        goal_direction=req.goal_direction)  # fmt: skip

@@ -5,6 +5,7 @@ intersections (clusters, box, conflicts of a crossing), and the interfaces: the 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -18,7 +19,14 @@ from bywire.host.behaviour import rules
 from bywire.host.behaviour.behaviour import Behaviour
 from bywire.host.behaviour.intersection_manager import crossing_geometry
 from bywire.host.behaviour.intersection_map import IntersectionMap, convex_hull, inside_convex
-from bywire.host.behaviour.manoeuvre import kturn_legs, polyline_leg, quintic_step, shifted_leg
+from bywire.host.behaviour.manoeuvre import (
+    kturn_legs,
+    path_leg,
+    polyline_leg,
+    quintic_step,
+    shifted_leg,
+    steering_speed_cap,
+)
 from bywire.host.behaviour.precedence import Turn
 from bywire.host.behaviour.route_view import curve_speed_cap_mps
 from bywire.host.behaviour.situation import (
@@ -394,3 +402,19 @@ def test_two_tracks_at_one_line_share_its_earliest_arrival() -> None:
     assert sorted((w.vehicle_id, w.arrived_s) for w in m.waiting) == [("a", 0.0), ("b", 0.0)]
     m.update(5.5, (_waiting_at(m, other, "b", back_m=1.0),))
     assert [(w.vehicle_id, w.arrived_s) for w in m.waiting] == [("b", 0.0)]
+
+
+def test_the_speed_cap_gives_the_wheels_time_to_steer_where_the_curvature_jumps() -> None:
+    """A leg straight for 10 m, then full left lock: at 0.35 rad/s the wheels need atan(2.72 / 5.5) /
+    0.35 s; standing d m before the jump the cap lets that time cover d + 0.5 m, and on the arc itself,
+    where the curvature stays, there is nothing to wait for."""
+    s = np.arange(0.0, 20.01, 0.25)
+    kappa = np.where(s < 10.0, 0.0, 1.0 / 5.5)
+    leg = path_leg(s, np.zeros_like(s), np.zeros_like(s), 1)
+    leg = dataclasses.replace(leg, kappa=kappa, s=s)
+    turn_s = math.atan(2.72 / 5.5) / 0.35
+    for d in (6.0, 3.0, 1.0):
+        cap = steering_speed_cap(leg, 10.0 - d, 2.72, 0.35, 0.5, 8.0)
+        assert cap == pytest.approx((d + 0.5) / turn_s, rel=0.05)
+    assert steering_speed_cap(leg, 12.0, 2.72, 0.35, 0.5, 8.0) == math.inf
+    assert steering_speed_cap(leg, 0.0, 2.72, 0.35, 0.5, 8.0) == math.inf  # the jump is beyond the preview
