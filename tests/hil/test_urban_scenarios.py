@@ -149,6 +149,18 @@ def test_darpa_sample_mission_first_200_s(tmp_path: Path) -> None:
     assert m["stop_line_stops"] >= 2 and m["max_speed_mps"] > 8.0
 
 
+def test_exits_tighter_than_full_lock_stay_within_their_lanes() -> None:
+    """The DARPA sample's two exits the road graph cannot bring under full lock, from checkpoint 9 to 1:
+    1.2.6 -> 4.1.1 planned on its own lanes (followed on the graph's curve it took the car 0.4 m off
+    the road); 3.2.13 -> 1.2.5 has no plan inside its two 12 ft lanes at any number of moves, and on
+    the graph's curve the car keeps within 0.3 m of them."""
+    _need(SAMPLE)
+    doc = run(load_scenario("unsteerable_exit"))
+    assert doc["verdict"] == "pass", failed(doc)
+    m = doc["metrics"]
+    assert m["road_departure_m"] <= 0.05 and m["lane_departure_m"] < 0.3 and m["behaviour_faults"] == 0
+
+
 def test_nqe_area_a_first_200_s() -> None:
     _need(NQE)
     doc = run(_bounded("nqe_area_a", 200.0, 6))

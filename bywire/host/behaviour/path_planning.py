@@ -217,13 +217,15 @@ def make_request(
     fine: bool = False,
     reverse_factor: float = ZONE_REVERSE_FACTOR,
     directions: tuple[float, float] = (0.0, 0.0),
+    start: Pose | None = None,
 ) -> PlanRequest:
-    """The request for a plan from our pose to `goal` on `grid` (see `solve`)."""
+    """The request for a plan from `start` (our pose) to `goal` on `grid` (see `solve`)."""
     if abs(grid.resolution_m - ZONE_CELL_M) > 1e-9:
         raise ValueError(f"path planning: a map of {grid.resolution_m} m cells, not {ZONE_CELL_M} m")
     ego = ctx.situation.ego
+    here = start or (ego.x_m, ego.y_m, ego.heading_rad)
     return PlanRequest(
-        grid.occupied, grid.origin_xy_m, footprint(ctx), (ego.x_m, ego.y_m, ego.heading_rad), goal, then,
+        grid.occupied, grid.origin_xy_m, footprint(ctx), here, goal, then,
         back_out_m, forward_via, fine, reverse_factor, *directions,
     )  # fmt: skip
 

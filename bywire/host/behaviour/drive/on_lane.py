@@ -28,6 +28,7 @@ from bywire.host.roadnet.graph import EdgeKind
 
 from .. import rules
 from ..context import BehaviourContext
+from ..exit_turn import steer_exit
 from ..hsm import State, Transition
 from ..lanes import adjacent_left_lane
 from .common import LANE_CHANGE_KINDS, mark_blockade, pass_plan, road_blocked
@@ -89,6 +90,11 @@ def _can_pass(ctx: BehaviourContext) -> bool:
 
 
 def _drive_on_lane(ctx: BehaviourContext) -> None:
+    _drive_on_lane_here(ctx)
+    steer_exit(ctx)  # an exit ahead tighter than full lock: its planned moves
+
+
+def _drive_on_lane_here(ctx: BehaviourContext) -> None:
     start = _kturn_piece_start(ctx)
     if start is not None:
         ctx.stop_front_at(start, "K-turn ahead")

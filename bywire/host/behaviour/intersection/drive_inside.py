@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from .. import rules
 from ..context import BehaviourContext
+from ..exit_turn import steer_exit
 from ..hsm import State
 from .common import front_to_line, manager
 
@@ -17,6 +18,11 @@ __all__ = ["intersection_drive_inside_state"]
 
 
 def _drive_inside(ctx: BehaviourContext) -> None:
+    _drive_inside_here(ctx)
+    steer_exit(ctx)  # an exit ahead tighter than full lock: its planned moves
+
+
+def _drive_inside_here(ctx: BehaviourContext) -> None:
     mgr = manager(ctx)
     ctx.cap(rules.INTERSECTION_SPEED_MPS, "through the intersection")
     result = mgr.mtc(ctx.speed_mps, ctx.ego_front_s_m)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from .. import rules
 from ..context import BehaviourContext
+from ..exit_turn import plan_exit_ahead
 from ..hsm import NoProgress, State, Transition
 from ..intersection_manager import IntersectionManager
 from ..recovery.mission_complete import mission_done
@@ -40,6 +41,7 @@ def _exit(ctx: BehaviourContext) -> None:
 
 def _update(ctx: BehaviourContext) -> None:
     manager(ctx).update(ctx.t_s, ctx.situation.objects)
+    plan_exit_ahead(ctx)  # planned while we approach, stop and wait: driven once we go
 
 
 def _left(ctx: BehaviourContext) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from .. import rules
 from ..context import BehaviourContext
+from ..exit_turn import steer_exit
 from ..hsm import State, Transition
 from ..precedence import Turn
 from .common import manager, mtc_free
@@ -35,6 +36,11 @@ def _prio_inside_entry(ctx: BehaviourContext) -> None:
 
 
 def _prio_drive_inside(ctx: BehaviourContext) -> None:
+    _prio_drive_inside_here(ctx)
+    steer_exit(ctx)  # an exit ahead tighter than full lock: its planned moves
+
+
+def _prio_drive_inside_here(ctx: BehaviourContext) -> None:
     ctx.cap(rules.INTERSECTION_SPEED_MPS, "through the intersection")
     ctx.say("driving through the intersection on the priority road")
 
