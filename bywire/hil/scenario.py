@@ -405,6 +405,7 @@ URBAN_HAND_MADE = (
     "maze_zone",
     "kturn_narrow_road",
     "blocked_road_no_uturn_edge",
+    "obstacle_appears_close",
 )
 
 # The scenarios of the spine's contract (ECU, plant and host), runnable by bare name: the tests run

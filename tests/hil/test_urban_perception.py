@@ -13,6 +13,7 @@ import math
 from typing import Any
 
 import pytest
+from shared_data import shared_data_dir
 
 from bywire.hil.evaluate import evaluate
 from bywire.hil.perception_eval import perception_metrics
@@ -138,7 +139,9 @@ def test_the_parking_lot_is_planned_on_the_lidars_occupancy_grid() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", URBAN)
+@pytest.mark.parametrize("name", [*URBAN, "unsteerable_exit"])
 def test_every_urban_scenario_passes_on_lidar(name: str) -> None:
+    if name == "unsteerable_exit" and not (shared_data_dir() / "rndf" / "darpa_sample").is_dir():
+        pytest.skip("the DARPA sample RNDF is not in the shared data (set BYWIRE_SHARED_DATA)")
     doc = run(name, "lidar")
     assert doc["verdict"] == "pass", failed(doc)

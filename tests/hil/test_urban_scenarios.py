@@ -121,6 +121,13 @@ def test_what_each_scenario_is_about(hand_made: tuple[str, dict[str, Any]]) -> N
         assert turn[0] == "DriveKTurnPlanning" and turn[-1] == "DriveKTurnFinish" and len(turn) == 4
         assert not {"DriveRecovery", "GlobalRecovery"} & set(leaves(doc))
         assert m["road_departure_m"] < 0.3 and m["direction_changes"] == 4 and m["mission_complete"]
+    elif name == "obstacle_appears_close":
+        # the box appeared 15 m ahead at speed; the tentacles took the car past it within the lanes,
+        # without stopping for it
+        appeared = doc["_extra"]["urban"]["appeared"]
+        assert [a[0] for a in appeared] == ["box"]
+        assert m["min_separation_m"] >= 0.2 and m["lane_departure_m"] <= 0.0 and m["mission_complete"]
+        assert leaves(doc) == ["DriveOnLane", "MissionComplete"]
     elif name == "host_freeze_in_turn":
         assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True
         assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"

@@ -90,7 +90,8 @@ def moving_vehicle_meshes(world: UrbanWorld, ground: Ground) -> list[Mesh]:
 
 
 def moving_cars(cars: Iterable[Car]) -> list[Car]:
-    return [c for c in cars if c.spec.driver not in STANDING_DRIVERS]
+    """The cars cast every revolution: the traffic, and what appears later (not in the static scene)."""
+    return [c for c in cars if c.spec.driver not in STANDING_DRIVERS or c.spec.appears_ahead_m > 0.0]
 
 
 @dataclass

@@ -16,7 +16,9 @@ emergency); they keep a 1.2 s time gap with 4 m standstill to anything ahead on 
 included); at a stop line they stop 0.3 m short, wait at least 1 s (rules 5.2) and go first-come-
 first-served: when nobody who arrived earlier at that intersection still waits (unless that one has let
 `STUCK_GRACE_S` pass since its turn came: a car that never moves) and nobody is inside the box. `stuck`
-cars stand where they are placed forever (at a stop line they count as waiting). `parked` cars stand.
+cars stand where they are placed forever (at a stop line they count as waiting). `parked` cars stand
+(one with `appears_ahead_m` only from when our front bumper comes that close: an obstacle appearing
+just ahead).
 
 Bookkeeping, every step, all from ground truth: arrivals at and departures from every stop line of every
 vehicle (precedence), our stop-line stops (front bumper vs line), box-to-box separation of our car to
@@ -266,7 +268,9 @@ class UrbanWorld:
         if pose is None:
             raise ValueError(f"urban.start: {v0} is not a waypoint of {spec.rndf}")
         self.start = (pose.x_m, pose.y_m, pose.heading_rad)
-        self.cars = [self._car(v, i) for i, v in enumerate(spec.vehicles)]
+        cars = [self._car(v, i) for i, v in enumerate(spec.vehicles)]
+        self.cars = [c for c in cars if c.spec.appears_ahead_m <= 0.0]
+        self.unseen = [c for c in cars if c.spec.appears_ahead_m > 0.0]  # not there yet
         self.t_s = 0.0
         self._next_decision_s = 0.0
         self.ego = (pose.x_m, pose.y_m, pose.heading_rad, 0.0, 0.0)  # rear axle x, y, heading, v, r
@@ -296,6 +300,7 @@ class UrbanWorld:
         self.tracks: dict[str, list[tuple[float, float, float]]] = {"ego": []}
         self.ego_speed_limit = math.nan
         self.seq = 0
+        self.appeared: list[tuple[str, float]] = []  # (name, when) of the objects that appeared
 
     # -- set-up -------------------------------------------------------------------------------------
 
@@ -365,6 +370,8 @@ class UrbanWorld:
             for car in self.cars:
                 self._move(car, dt)
         self.t_s = t_s
+        if self.unseen:
+            self._appear()
         self._book_lines(t_s)
         self._book_contacts(t_s)
         self._book_checkpoints(t_s)
@@ -378,6 +385,15 @@ class UrbanWorld:
                 self.tracks.setdefault(car.name, []).append(
                     (round(t_s, 3), round(car.x_m, 2), round(car.y_m, 2))
                 )
+
+    def _appear(self) -> None:
+        """Objects our front bumper has come within `appears_ahead_m` of are there from now on."""
+        fx, fy = self.ego_front()
+        for c in list(self.unseen):
+            if math.hypot(c.x_m - fx, c.y_m - fy) - 0.5 * c.length_m <= c.spec.appears_ahead_m:
+                self.unseen.remove(c)
+                self.cars.append(c)
+                self.appeared.append((c.name, round(self.t_s, 3)))
 
     def _others(self, me: str) -> list[tuple[str, float, float, float, float]]:
         """(name, centre x, y, heading, length) of every vehicle but `me`."""
@@ -648,6 +664,7 @@ class UrbanWorld:
             "road_departure_at_s": self.road_departure_at_s,
             "road_departure_xy": self.road_departure_xy,
             "own_side": [list(r) for r in self.own_side],
+            "appeared": [list(a) for a in self.appeared],
             "tracks": {k: [list(r) for r in v] for k, v in self.tracks.items()},
             "intersections": [[i.x_m, i.y_m, i.inside_m] for i in self.intersections],
         }

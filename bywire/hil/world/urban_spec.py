@@ -50,6 +50,9 @@ class UrbanVehicleSpec:
     heading_deg: float = 0.0
     length_m: float = 4.5
     width_m: float = 1.8
+    # parked: not there until our front bumper comes within this distance of it (a box fallen off a
+    # truck just ahead); 0: there from the start
+    appears_ahead_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -207,7 +210,10 @@ def _vehicle(r: Reader) -> UrbanVehicleSpec:
     kw["depart_at_s"] = r.number("depart_at_s", default=0.0, lo=0.0)
     kw["stop_at_stops"] = r.boolean("stop_at_stops", True)
     kw["length_m"] = r.number("length_m", default=4.5, lo=1.0, hi=25.0)
-    kw["width_m"] = r.number("width_m", default=1.8, lo=0.5, hi=3.5)
+    kw["width_m"] = r.number("width_m", default=1.8, lo=0.2, hi=3.5)
+    kw["appears_ahead_m"] = r.number("appears_ahead_m", default=0.0, lo=0.0, hi=1000.0)
+    if kw["appears_ahead_m"] > 0.0 and driver != "parked":
+        raise r.error("appears_ahead_m", "only a parked object appears; traffic drives from the start")
     r.finish()
     return UrbanVehicleSpec(**kw)
 

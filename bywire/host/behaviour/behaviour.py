@@ -58,6 +58,7 @@ from .drive.common import report_key
 from .hsm import Fired, Machine, State
 from .intersection import intersection_family
 from .intersection_map import IntersectionMap
+from .reactive import react
 from .recovery import global_recovery_state, mission_complete_state, replan_state
 from .route_view import PathObject, RouteView, objects_on_path
 from .situation import BehaviourCommand, EStop, LeadObject, PathStub, Situation, stub_from_arrays
@@ -195,6 +196,7 @@ class Behaviour:
                 fired = (f,)
             fired += self.machine.step(ctx, ctx.t_s, ctx.odometer_m)
             self.machine.run_activities(ctx)
+            react(ctx)  # the reactive layer over the states' plan (Sec. 7: tentacles)
         except Exception as exc:  # seed 000 Sec. 12: never hang, never hide (see the module docstring)
             self.faults += 1
             fault = f"{type(exc).__name__}: {exc}"
