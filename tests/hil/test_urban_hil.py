@@ -141,3 +141,22 @@ def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
     leaves = [s.rsplit("/", 1)[-1] for _, s in result["state_history"]]
     assert leaves[1:5] == ["ZoneApproach", "ZoneEnter", "ZonePark", "ZoneLeave"]
     assert "ZoneRecovery" not in leaves and m["min_speed_mps"] < -0.2
+
+
+@pytest.mark.slow  # ~70 s of wall time; the default HIL stage has the parking lot's planner on wall time
+def test_the_dead_end_kturn_in_three_processes(tmp_path: Path) -> None:
+    """The K-turn planned on the road on wall time: the plan is solved in the worker process while the
+    car holds at the dead end, then three legs within the 9.1 m street, no curb touched, and back."""
+    path = builtin_scenarios()["kturn_narrow_road"]
+    doc = yaml.safe_load(path.read_text())
+    doc["name"] = "kturn_narrow_road_hil"
+    for key in ("rndf", "mdf"):
+        doc["urban"][key] = str(path.parent / doc["urban"][key])
+    result = _run_hil(doc, tmp_path)
+    m = result["metrics"]
+    assert result["verdict"] == "pass", result["checks"]
+    assert m["checkpoints_reached_list"] == [1, 2, 3] and m["final_state"] == "ENGAGED"
+    leaves = [s.rsplit("/", 1)[-1] for _, s in result["state_history"]]
+    turn = [s for s in leaves if s.startswith("DriveKTurn")]
+    assert turn[0] == "DriveKTurnPlanning" and turn[-1] == "DriveKTurnFinish"
+    assert m["road_departure_m"] < 0.3 and m["direction_changes"] <= 4

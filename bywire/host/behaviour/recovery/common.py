@@ -15,7 +15,7 @@ axle to the lane graph (`LaneIndex.match`, as `MissionPlanner.replan_from_pose` 
   the edge we are on in front as the route's lead-in: "drive";
 - off every lane (in a zone, on a parking lot), or blocked without a lane to turn onto: "failed". The
   global recovery then holds and tries again every `rules.GLOBAL_REPLAN_INTERVAL_S`; bringing the car
-  back onto a lane from anywhere is the zone planner's job (Sec. 10, hybrid A*), which comes later.
+  back onto a lane from anywhere is the path planner's (`back_to_road`, Sec. 10's hybrid A*).
 
 A plan that found a checkpoint unreachable with the blockades known has forgotten them all (the
 planner's rule, as AnnieWAY's): the command's requests say so, and name checkpoints that stayed
@@ -59,7 +59,7 @@ def replan_from_here(ctx: BehaviourContext) -> str:
     ego = ctx.situation.ego
     match = ctx.lane_index.match(ego.x_m, ego.y_m, ego.heading_rad)
     if match is None:
-        ctx.say("replan: we are on no lane of the network (waiting for zone navigation)")
+        ctx.say("replan: we are on no lane of the network")
         return "failed"
     edge = match.edge
     dead_end = _no_way_on(ctx, edge)
