@@ -120,6 +120,7 @@ __all__ = [
     "TIGHT_TURN_CURVATURE_1PM",
     "TIGHT_TURN_SPEED_MPS",
     "TRAFFIC_NEAR_M",
+    "TURNAROUND_SEARCH_M",
     "ZONE_APPROACH_TRIGGER_M",
     "ZONE_BACK_OUT_MARGIN_M",
     "ZONE_HANDOVER_M",
@@ -277,6 +278,9 @@ QUEUE_GAP_M: Final = 15.0
 PASS_NO_INTERSECTION_M: Final = 40.0  # ours: no passing manoeuvre ends closer than this to an intersection
 KTURN_TRIGGER_M: Final = 20.0  # AnnieWAY code TRIGGER_DIST_KTURN
 KTURN_RADIUS_M: Final = 5.5  # ours: atan(2.72 / 5.5) = 26 deg of steer, 4 deg below the lock for control
+# ours: without an opposite lane in our segment, a K-turn turns onto the nearest lane of any segment running
+# back alongside within this (a street drawn as two one-way segments: no U-turn edge between them)
+TURNAROUND_SEARCH_M: Final = 20.0
 KTURN_SWITCH_DISTANCE_M: Final = 0.5  # ours: a leg of the K-turn ends within this of its end point
 
 # Zones: the stand-in path (zone/navigator.py) lines up with a spot this far before its first waypoint

@@ -4,8 +4,9 @@ on it.
 
 - Onto which lane: the one DriveOnLane (a U-turn the RNDF asks for) or Replan (a blockade) chose; else
   the opposite lane of our segment on our left (`lanes.adjacent_left_lane`); else the nearest lane of
-  any segment within `TURN_SEARCH_M` that runs the other way alongside us (`lanes.opposite_lane_nearby`:
-  a street drawn as two one-way segments has no U-turn edge, and turning onto it is the way out).
+  any segment within `rules.TURNAROUND_SEARCH_M` that runs the other way alongside us
+  (`lanes.opposite_lane_nearby`: a street drawn as two one-way segments has no U-turn edge, and
+  turning onto it is the way out).
 - The goal: the rear axle on that lane's centre line `GOAL_AHEAD_M` on from the point alongside us,
   heading along it.
 - The map: the road (`roadnet.road_area`: lanes and exits at their RNDF widths, the band between the
@@ -32,13 +33,13 @@ import numpy as np
 
 from bywire.host.navigation.grid_map import GridMap
 
+from .. import rules
 from ..context import BehaviourContext
 from ..lanes import AdjacentLane, adjacent_left_lane, opposite_lane_nearby
 from ..path_planning import ROAD_EDGE_SLACK_M, PlanRequest, Pose, blank_map, make_request, obstacles_on
 
 __all__ = ["road_map", "turn_request", "turn_target"]
 
-TURN_SEARCH_M = 20.0
 GOAL_AHEAD_M = 2.0
 MAP_HALF_M = 22.0
 TURN_REVERSE_FACTOR = 1.0
@@ -54,7 +55,7 @@ def turn_target(ctx: BehaviourContext) -> AdjacentLane | None:
         side = adjacent_left_lane(ctx.graph, edge.lane, ego.x_m, ego.y_m, ego.heading_rad)
         if side is not None and side.opposite:
             return side
-    return opposite_lane_nearby(ctx.graph, ego.x_m, ego.y_m, ego.heading_rad, TURN_SEARCH_M)
+    return opposite_lane_nearby(ctx.graph, ego.x_m, ego.y_m, ego.heading_rad, rules.TURNAROUND_SEARCH_M)
 
 
 def turn_goal(ctx: BehaviourContext, target: AdjacentLane) -> Pose | None:

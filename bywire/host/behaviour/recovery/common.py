@@ -26,8 +26,8 @@ from __future__ import annotations
 
 from bywire.host.roadnet.graph import Edge, EdgeKind
 
+from .. import rules
 from ..context import BehaviourContext
-from ..drive.turnaround import TURN_SEARCH_M
 from ..lanes import adjacent_left_lane, opposite_lane_nearby
 from ..route_view import RouteView
 from ..situation import RequestKind
@@ -71,7 +71,8 @@ def replan_from_here(ctx: BehaviourContext) -> str:
             if side is not None and not side.opposite:
                 side = None
         if side is None:  # no U-turn edge: a lane of another segment running back alongside
-            side = opposite_lane_nearby(ctx.graph, ego.x_m, ego.y_m, ego.heading_rad, TURN_SEARCH_M)
+            reach = rules.TURNAROUND_SEARCH_M
+            side = opposite_lane_nearby(ctx.graph, ego.x_m, ego.y_m, ego.heading_rad, reach)
         if side is not None:
             ctx.kturn_target = side
             ctx.say(f"replan: {where} is blocked, turning around onto lane {side.lane}")

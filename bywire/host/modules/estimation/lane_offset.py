@@ -10,8 +10,8 @@ it from our pose, and the behaviour from the perceived objects' positions (both 
 position fix's frame), and the whole map then lies where the road is, through intersections as well.
 
 Where it measures: on a lane (not an exit or a zone), the car moving (`MIN_SPEED_MPS`) along it
-(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane. It reads the road network
-from the host's resources: it runs in the host process.
+(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another. It reads the
+road network from the host's resources: it runs in the host process.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class LaneOffsetModule(Module):
         self._stamp_s = math.nan
         self._normal = (0.0, 0.0)
         self._lane: Any = None  # the map lane measured against, and where the car came onto it
-        self._lane_since = (math.nan, math.nan)
+        self._lane_since = (math.inf, math.inf)
         self._last = LaneOffsetEstimate(0.0, False, math.nan, 0.0, math.inf, False, 0.0, 0.0, 0.0)
 
     def _map_lane(self, x: float, y: float, h: float) -> tuple[np.ndarray, float] | None:
@@ -76,7 +76,9 @@ class LaneOffsetModule(Module):
         if match is None or match.edge.kind != EdgeKind.LANE:
             return None
         if match.edge.lane != self._lane:
-            self._lane, self._lane_since = match.edge.lane, (x, y)
+            # the first lane is measured at once (nothing of another road is in the marker map yet)
+            since = (x, y) if self._lane is not None else (math.inf, math.inf)
+            self._lane, self._lane_since = match.edge.lane, since
         if math.hypot(x - self._lane_since[0], y - self._lane_since[1]) < SETTLE_M:
             return None
         path = match.edge.path
