@@ -222,7 +222,16 @@ SUPERVISOR_CASES = {
 }
 
 
-@pytest.mark.parametrize("scenario", sorted(SUPERVISOR_CASES))
+# The default run keeps the faults that only a real process shows (a hang, a deadlock, a killed worker);
+# an exception and a slow module are judged in process too (tests/host/runtime/test_runtime_supervisor.py)
+# and run here with -m slow: the suite's time is counted.
+IN_PROCESS_TOO = ("supervisor_exception", "supervisor_slow")
+
+
+@pytest.mark.parametrize(
+    "scenario",
+    [pytest.param(s, marks=pytest.mark.slow) if s in IN_PROCESS_TOO else s for s in sorted(SUPERVISOR_CASES)],
+)
 def test_supervisor_catches_module_faults_in_a_multi_process_run(tmp_path: Path, scenario: str) -> None:
     """The host runtime's supervisor: each module fault is detected within its bound and handled in a
     real HIL run; the recording of the run opens with the mcap reader and replays exactly."""
