@@ -48,6 +48,7 @@ MAP_MARGIN_M = 12.0  # around the start and the goal
 LANES_AROUND_M = 20.0  # the route's lanes this far before the start and past the goal are on the map
 THEN_M = 15.0  # the route after the goal, appended to the last leg
 EXIT_REVERSE_FACTOR = 1.5
+START_WINDOW_M = 1.0  # the moves begin with the rear axle this close to their start
 _KEY = "exit_turn"
 
 
@@ -62,7 +63,6 @@ class ExitTurn:
     legs: tuple[Leg, ...] = ()
     goal_leg_s_m: float = math.inf  # the goal's arc length on the last leg
     driving: bool = False
-    failed: str = ""
 
 
 def unsteerable(ctx: BehaviourContext, edge: Edge) -> bool:
@@ -137,7 +137,6 @@ def _poll(ctx: BehaviourContext, turn: ExitTurn) -> None:
     planned = legs_of(reply)
     where = f"exit {turn.edge.start} -> {turn.edge.end}"
     if isinstance(planned, str):
-        turn.failed = planned
         ctx.say(f"{where} is tighter than full lock; {planned}: on the graph's curve")
         return
     turn.legs = _on_route(ctx, turn, planned.legs)
@@ -170,11 +169,16 @@ def steer_exit(ctx: BehaviourContext) -> None:
     if turn is None:
         return
     if not turn.driving:
-        if turn.legs and ctx.ego_s_m >= turn.start_s_m - 0.5 and not ctx.plan.stops and not ctx.plan.hold:
+        at_start = turn.start_s_m - START_WINDOW_M <= ctx.ego_s_m <= turn.start_s_m + START_WINDOW_M
+        if turn.legs and at_start and not ctx.plan.stops and not ctx.plan.hold:
             turn.driving = True
             ctx.begin_legs(turn.legs)
-        elif ctx.ego_s_m > turn.goal_s_m or (turn.failed and ctx.ego_s_m > turn.start_s_m + 1.0):
-            del ctx.manoeuvre_data[_KEY]  # passed (or failed and driven on the curve)
+        elif ctx.ego_s_m > turn.start_s_m + START_WINDOW_M:
+            # past the start without moves (none found, or found too late: a worker's plan on wall
+            # time): this exit is driven on the graph's curve
+            if turn.legs:
+                ctx.say(f"exit {turn.edge.start} -> {turn.edge.end}: its moves came too late, on the curve")
+            del ctx.manoeuvre_data[_KEY]
             return
         else:
             return

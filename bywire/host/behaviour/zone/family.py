@@ -12,13 +12,15 @@ leg's end for `ZONE_REPLAN_STALL_S`, the way to the target is planned again from
 
 from __future__ import annotations
 
+import math
+
 from .. import rules
 from ..context import BehaviourContext
 from ..hsm import NoProgress, State, Transition
 from .approach import zone_approach_state
 from .enter import zone_enter_state
 from .leave import zone_leave_state
-from .navigator import ZoneNavigator, zone_speed
+from .navigator import ZoneNavigator, ZoneTarget, zone_speed
 from .park import zone_park_state
 from .recovery import zone_recovery_state
 
@@ -36,7 +38,8 @@ def _exit(ctx: BehaviourContext) -> None:
     if target is not None and target.kind == "exit":  # route tracking resumes at the perimeter exit
         ego = ctx.situation.ego
         s, lateral, _ = ctx.view.locate(ego.x_m, ego.y_m, target.exit_route_s_m, 1.0, 10.0)
-        ctx.ego_s_m, ctx.ego_lateral_m = s, lateral
+        # never back inside the zone's piece of the route: Drive would see the zone ahead and come back
+        ctx.ego_s_m, ctx.ego_lateral_m = max(s, target.exit_route_s_m), lateral
 
 
 def _left_zone(ctx: BehaviourContext) -> bool:
@@ -50,7 +53,20 @@ def _left_zone(ctx: BehaviourContext) -> bool:
         and nav.on_final_leg(ctx)
         and ctx.legs[ctx.leg_index].direction == 1
         and ctx.leg_s_m >= nav.exit_s_m
+        and _past_gate(ctx, nav, target)
     )
+
+
+def _past_gate(ctx: BehaviourContext, nav: ZoneNavigator, target: ZoneTarget) -> bool:
+    """Our rear axle is past the perimeter exit along the exit edge (a planned path that runs near the
+    perimeter point before it leaves, as at the DARPA sample's 14.0.5, must not end the zone early)."""
+    px, py = nav.graph.vertex_xy(target.point)
+    edge = target.exit_edge
+    if edge is None or len(edge.path) < 2:
+        return True
+    h = float(edge.path.heading_rad[0])
+    ego = ctx.situation.ego
+    return (ego.x_m - px) * math.cos(h) + (ego.y_m - py) * math.sin(h) >= 0.0
 
 
 def _follow(ctx: BehaviourContext) -> None:
