@@ -21,6 +21,16 @@ from bywire.hil.scenario import builtin_scenarios
 pytestmark = pytest.mark.hil
 
 
+def _builtin_hil_doc(name: str) -> dict[str, Any]:
+    """A shipped urban scenario as a document for a HIL run: named NAME_hil, its network files by path."""
+    path = builtin_scenarios()[name]
+    doc: dict[str, Any] = yaml.safe_load(path.read_text())
+    doc["name"] = f"{name}_hil"
+    for key in ("rndf", "mdf"):
+        doc["urban"][key] = str(path.parent / doc["urban"][key])
+    return doc
+
+
 def _run_hil(doc: dict[str, Any], tmp_path: Path, timeout_s: float = 400.0) -> dict[str, Any]:
     result, report = run_in_hil(doc, tmp_path, timeout_s)
     assert (report / f"{doc['name']}_urban.png").stat().st_size > 20_000
@@ -111,11 +121,7 @@ def test_darpa_sample_mission_whole_in_three_processes(tmp_path: Path) -> None:
 def test_host_frozen_mid_turn_the_ecu_stops_the_car(tmp_path: Path) -> None:
     """SIGSTOP of the host process while it turns left inside the intersection: the ECU's watchdog brings
     the car to a standstill (SAFE_STOP) and holds it."""
-    path = builtin_scenarios()["host_freeze_in_turn"]
-    doc = yaml.safe_load(path.read_text())
-    doc["name"] = "host_freeze_in_turn_hil"
-    for key in ("rndf", "mdf"):
-        doc["urban"][key] = str(path.parent / doc["urban"][key])
+    doc = _builtin_hil_doc("host_freeze_in_turn")
     result = _run_hil(doc, tmp_path)
     m = result["metrics"]
     assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"
@@ -126,12 +132,8 @@ def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
     """The zone planner on wall time: each plan is solved in the behaviour's worker process while the
     car holds, the host keeps its rhythm (no stale request, no stop), and the car parks between the two
     parked cars, backs out and leaves by the exit."""
-    path = builtin_scenarios()["zone_park_between_cars"]
-    doc = yaml.safe_load(path.read_text())
-    doc["name"] = "zone_park_between_cars_hil"
+    doc = _builtin_hil_doc("zone_park_between_cars")
     doc["duration_s"] = 80.0  # done in about 70 s; the suite's time is counted
-    for key in ("rndf", "mdf"):
-        doc["urban"][key] = str(path.parent / doc["urban"][key])
     doc["checks"] = [c for c in doc["checks"] if c["metric"] != "time_s"]
     result = _run_hil(doc, tmp_path)
     m = result["metrics"]
@@ -147,11 +149,7 @@ def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
 def test_the_dead_end_kturn_in_three_processes(tmp_path: Path) -> None:
     """The K-turn planned on the road on wall time: the plan is solved in the worker process while the
     car holds at the dead end, then three legs within the 9.1 m street, no curb touched, and back."""
-    path = builtin_scenarios()["kturn_narrow_road"]
-    doc = yaml.safe_load(path.read_text())
-    doc["name"] = "kturn_narrow_road_hil"
-    for key in ("rndf", "mdf"):
-        doc["urban"][key] = str(path.parent / doc["urban"][key])
+    doc = _builtin_hil_doc("kturn_narrow_road")
     result = _run_hil(doc, tmp_path)
     m = result["metrics"]
     assert result["verdict"] == "pass", result["checks"]
