@@ -493,7 +493,26 @@ def encode(msg: V2xMessage) -> bytes:
     raise TypeError(f"encode: {type(msg).__name__} is not a VehicleState, TrafficLightState or SpeedLimit")
 
 
+def _refuse_out_of_range_markers(s: dict[str, Any]) -> None:
+    """The ETSI out-of-range markers (speed 16382, acceleration +-160, yaw rate +-32766, length 1022,
+    width 61) say "beyond the field's range", which no VehicleState carries: such a datagram is refused
+    (our encoder never sends them, and a value taken as the marker's number would not encode again)."""
+    markers = (
+        ("speed", (SPEED_OUT_OF_RANGE,)),
+        ("longitudinalAcceleration", (ACCEL_OUT_OF_RANGE, -ACCEL_OUT_OF_RANGE)),
+        ("yawRate", (YAW_RATE_OUT_OF_RANGE, -YAW_RATE_OUT_OF_RANGE)),
+        ("vehicleLength", (LENGTH_OUT_OF_RANGE,)),
+        ("vehicleWidth", (WIDTH_OUT_OF_RANGE,)),
+    )
+    for name, values in markers:
+        if s.get(name) in values:
+            raise V2xDecodeError(
+                DecodeReason.MALFORMED, f"VehicleState.{name}: {s[name]} is the ETSI out-of-range marker"
+            )
+
+
 def _vehicle_from_dict(station_id: int, s: dict[str, Any]) -> VehicleState:
+    _refuse_out_of_range_markers(s)
     direction = s["driveDirection"]
     return VehicleState(
         station_id=station_id,
