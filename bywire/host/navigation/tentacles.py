@@ -22,8 +22,10 @@ coordinates (u along it from the rear axle, d across it):
 plus (von Hundelshausen's) agreement with the arc chosen last cycle, so the choice does not flicker.
 The drivable arc with the least weighted cost wins; none drivable: the caller stops.
 
-Deviation: the paper's arcs are evaluated on the occupancy grid only up to the first tracked obstacle
-(tracked cars are the following logic's business); the caller gives the obstacle points accordingly.
+As in the paper, arcs see obstacles only up to the first tracked vehicle (tracked cars are the following
+logic's business): the caller (`behaviour.reactive`) gives the obstacle points accordingly. Deviations:
+aspect 2 is the clearance, not the terrain's smoothness, and the arcs are placed in the world frame
+from the pose, not looked up in a vehicle-centred grid.
 """
 
 from __future__ import annotations
