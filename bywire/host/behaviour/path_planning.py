@@ -35,6 +35,7 @@ from bywire.host.navigation.cspace import CSpace, Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
 from bywire.host.navigation.hybrid_astar import PlannerParams, run_to_end, search
 from bywire.host.navigation.smoothing import smooth_path, split_at_cusps
+from bywire.host.navigation.tentacles import box_points
 
 from . import rules
 from .context import BehaviourContext
@@ -44,6 +45,7 @@ from .situation import Direction
 __all__ = [
     "ROAD_EDGE_SLACK_M", "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs",
     "blank_map", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of", "solve", "solve_steps",
+    "standing_points",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
@@ -104,6 +106,21 @@ def obstacles_on(ctx: BehaviourContext, grid: GridMap) -> GridMap:
         [_own_box(ctx, ego.x_m, ego.y_m, ego.heading_rad)]
     )
     return GridMap(out.occupied & ~own.occupied | (blocked & own.occupied), ZONE_CELL_M, out.origin_xy_m)
+
+
+def standing_points(ctx: BehaviourContext) -> np.ndarray:
+    """What stands, as points (n, 2): the outlines of the objects slower than `rules.STILL_SPEED_MPS`
+    and, on LIDAR, the occupancy grid's obstacle cells (the reactive layer's and the replan check's)."""
+    sit = ctx.situation
+    pts = [
+        box_points(o.x_m, o.y_m, o.heading_rad, o.length_m, o.width_m)
+        for o in sit.objects
+        if abs(o.speed_mps) < rules.STILL_SPEED_MPS
+    ]
+    cells = sit.obstacle_cells
+    if cells is not None and len(cells):
+        pts.append(np.asarray(cells, dtype=float)[:, :2])
+    return np.vstack(pts) if pts else np.zeros((0, 2))
 
 
 def _near(grid: GridMap, x: float, y: float) -> bool:

@@ -27,11 +27,12 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bywire.host.navigation.tentacles import TentacleParams, box_points, choose_tentacle
+from bywire.host.navigation.tentacles import TentacleParams, choose_tentacle
 
 from . import rules
 from .context import BehaviourContext
 from .manoeuvre import Leg
+from .path_planning import standing_points
 
 __all__ = ["react"]
 
@@ -50,19 +51,6 @@ def _params(ctx: BehaviourContext) -> TentacleParams:
         rear_m=p.vehicle_length_m - p.rear_axle_to_front_m,
         min_radius_m=p.kturn_radius_m,
     )
-
-
-def _obstacle_points(ctx: BehaviourContext) -> np.ndarray:
-    sit = ctx.situation
-    pts = [
-        box_points(o.x_m, o.y_m, o.heading_rad, o.length_m, o.width_m)
-        for o in sit.objects
-        if abs(o.speed_mps) < rules.STILL_SPEED_MPS
-    ]
-    cells = sit.obstacle_cells
-    if cells is not None and len(cells):
-        pts.append(np.asarray(cells, dtype=float)[:, :2])
-    return np.vstack(pts) if pts else np.zeros((0, 2))
 
 
 def react(ctx: BehaviourContext) -> None:
@@ -93,7 +81,7 @@ def react(ctx: BehaviourContext) -> None:
     if path_s.size < 2:
         return
     path_xy = np.column_stack((view.x[w], view.y[w]))
-    obstacles = _obstacle_points(ctx)
+    obstacles = standing_points(ctx)
     if not obstacles.size:
         ctx.manoeuvre_data.pop(_KEY, None)
         return

@@ -98,9 +98,10 @@ def test_zone_recovery_then_global_recovery() -> None:
 
 def test_a_car_that_stops_on_the_planned_path_is_planned_around() -> None:
     """After the plan into the spot is made, a car comes from the side and stops across it, 10 m ahead
-    of us (on LIDAR: a part of a parked car seen only now). We stop behind it, and after
-    ZONE_REPLAN_STALL_S the planner finds the way round it, on the map that now holds it: into the spot
-    all the same, touching nothing."""
+    of us (on LIDAR: a part of a parked car seen only now). Once it stands, the check of the plan ahead
+    against what stands finds the blocked section, and the planner finds the way round it, on the map
+    that now holds it, before ZONE_REPLAN_STALL_S of standing in front of it: into the spot all the
+    same, touching nothing."""
     from hsm_sim import ScriptedCar
 
     from bywire.host.roadnet.path import Path
@@ -115,5 +116,9 @@ def test_a_car_that_stops_on_the_planned_path_is_planned_around() -> None:
     assert sim.collisions == [] and sim.faults == []
     reasons = [f.command.reason for f in sim.frames if f.state.startswith("Zone/")]
     assert any("replanned" in r for r in reasons)
+    blocked = next(f for f in sim.frames if "blocked ahead" in f.command.reason)
+    zone = [f for f in sim.frames if f.t_s > 18.5 and f.state.startswith("Zone/")]
+    stood = next(f for f in zone if abs(f.speed_mps) < 0.05)
+    assert blocked.t_s - stood.t_s < rules.ZONE_REPLAN_STALL_S
     assert "ZoneRecovery" not in sim.leaves()
     assert sim.frames[-1].command.checkpoints_reached == (1, 2, 3)

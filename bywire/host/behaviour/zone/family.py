@@ -4,19 +4,24 @@ the substates.
 On entry a `ZoneNavigator` is made for the route's zone piece; every cycle the leg being driven is
 followed at the zone speed; a planned leg before the last is driven to a stop at its end (a cusp) and
 the next one begun; reversing is at spot speed; slower where the path's curvature jumps
-(`BehaviourContext.cap_for_steering`); never past the plan's end; stopped short of a planned
-leg's end for `ZONE_REPLAN_STALL_S`, the way to the target is planned again from where we stand (seed
-000 Sec. 10's replanning). The family leaves to Drive once the rear axle is past the perimeter exit
-(route tracking resumes there) and to ZoneRecovery after `ZONE_NO_PROGRESS_S` without progress.
+(`BehaviourContext.cap_for_steering`); never past the plan's end. Seed 000 Sec. 10's replanning: the
+next `BLOCK_CHECK_M` of the leg is checked against what stands every cycle, and a blocked section
+there plans the way to the target again at once; stopped short of a planned leg's end for
+`ZONE_REPLAN_STALL_S` (what the check cannot see), too. The family leaves to Drive once the rear axle
+is past the perimeter exit (route tracking resumes there) and to ZoneRecovery after
+`ZONE_NO_PROGRESS_S` without progress.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .. import rules
 from ..context import BehaviourContext
 from ..hsm import NoProgress, State, Transition
+from ..path_planning import ZONE_MARGIN_TIGHT_M, footprint, standing_points
 from .approach import zone_approach_state
 from .enter import zone_enter_state
 from .leave import zone_leave_state
@@ -25,6 +30,9 @@ from .park import zone_park_state
 from .recovery import zone_recovery_state
 
 __all__ = ["zone_family"]
+
+BLOCK_CHECK_M = 12.0  # about two car lengths: what the car needs to stop at zone speed, and some
+BLOCK_CHECK_STEP_M = 0.5
 
 
 def _enter(ctx: BehaviourContext) -> None:
@@ -95,7 +103,7 @@ def _follow(ctx: BehaviourContext) -> None:
             if legs:
                 ctx.begin_legs(legs)
                 ctx.say("zone: replanned around what stands on the path")
-        else:
+        elif not _replan_when_blocked(ctx, nav):
             _replan_when_stalled(ctx, nav)
     if ctx.legs:
         ctx.plan.leg = ctx.legs[ctx.leg_index]
@@ -103,6 +111,45 @@ def _follow(ctx: BehaviourContext) -> None:
         ctx.plan.profile = False
         ctx.cap_for_steering()
     ctx.cap(zone_speed(ctx), "zone speed")
+
+
+def _replan_when_blocked(ctx: BehaviourContext, nav: ZoneNavigator) -> bool:
+    """Every cycle the next `BLOCK_CHECK_M` of the leg being driven is checked against what stands now
+    (Sec. 10's replanning): a pose there whose outline, grown by the tight margin, holds an obstacle
+    point is a blocked section, and the way to the target is planned again from here at once (not
+    after stalling in front of it). Beyond that distance a change does not replan (the free-section
+    check: it may be gone, or be planned around, by the time we get there). At most once per
+    `ZONE_REPLAN_STALL_S`. True when a replan was asked for."""
+    if nav.target is None or (
+        nav.blocked_replan_s is not None and ctx.t_s - nav.blocked_replan_s < rules.ZONE_REPLAN_STALL_S
+    ):
+        return False
+    leg = ctx.legs[ctx.leg_index]
+    s = np.arange(ctx.leg_s_m, min(ctx.leg_s_m + BLOCK_CHECK_M, leg.end_s_m), BLOCK_CHECK_STEP_M)
+    points = standing_points(ctx)
+    if s.size == 0 or not points.size:
+        return False
+    x, y, h = (np.interp(s, leg.s, a) for a in (leg.x, leg.y, leg.heading))
+    fp = footprint(ctx)
+    grow = ZONE_MARGIN_TIGHT_M
+    dx = points[None, :, 0] - x[:, None]
+    dy = points[None, :, 1] - y[:, None]
+    c, sn = np.cos(h)[:, None], np.sin(h)[:, None]
+    along = c * dx + sn * dy
+    across = -sn * dx + c * dy
+    half = 0.5 * fp.width_m + grow
+    inside = (along >= -fp.rear_m - grow) & (along <= fp.front_m + grow) & (np.abs(across) <= half)
+    # what already touches us where we stand is not a new blockade (a stray return, our own shadow)
+    inside[0] = False
+    if not inside.any():
+        return False
+    nav.blocked_replan_s = ctx.t_s
+    nav.request_legs(ctx, back_out=False)
+    legs = nav.poll_legs(ctx)
+    if legs:
+        ctx.begin_legs(legs)
+    ctx.say("zone: the plan is blocked ahead by what stands there now: replanning")
+    return True
 
 
 def _replan_when_stalled(ctx: BehaviourContext, nav: ZoneNavigator) -> None:

@@ -68,6 +68,7 @@ class ZoneNavigator:
         self.final_leg = 0  # the leg that reaches the target
         self.last_plan: PlannedLegs | str | None = None
         self.stalled_since_s: float | None = None  # stopped short of a planned leg's end since
+        self.blocked_replan_s: float | None = None  # when a blocked section ahead last asked for a replan
         self.pending: int | None = None  # the zone planner's ticket of the plan asked for
         self.replanning = False  # the plan asked for replaces legs being driven
         self.index = 0
