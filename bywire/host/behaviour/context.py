@@ -257,6 +257,22 @@ class BehaviourContext:
         else:
             self.on_route = False
 
+    def leg_done(self) -> bool:
+        """Stopped at the end of the leg being driven (within `rules.KTURN_SWITCH_DISTANCE_M` of it): where
+        a manoeuvre's next leg begins, the gear changing at a cusp."""
+        if not self.legs:
+            return False
+        leg = self.legs[self.leg_index]
+        return self.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and self.stopped
+
+    def drive_to_cusp(self, why: str) -> None:
+        """A leg before the last ends in a stop at its end: once stopped there, the next leg begins;
+        until then the stop is planned."""
+        if self.leg_done():
+            self.select_leg(self.leg_index + 1)
+        else:
+            self.stop_rear_at(self.legs[self.leg_index].end_s_m, why)
+
     def end_legs(self) -> None:
         """Back to the route (its tracking resumes around `ego_s_m`)."""
         self.legs = ()

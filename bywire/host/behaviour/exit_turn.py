@@ -31,14 +31,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bywire.host.navigation.grid_map import GridMap
 from bywire.host.roadnet.graph import Edge, EdgeKind
 from bywire.host.roadnet.road_area import RoadArea
 
 from . import rules
 from .context import BehaviourContext
 from .manoeuvre import Leg
-from .path_planning import ROAD_EDGE_SLACK_M, blank_map, legs_of, make_request, obstacles_on, planner_of
+from .path_planning import legs_of, make_request, planner_of, road_map
 
 __all__ = ["ExitTurn", "plan_exit_ahead", "steer_exit", "unsteerable"]
 
@@ -99,15 +98,11 @@ def _request(ctx: BehaviourContext, turn: ExitTurn) -> None:
     own = RoadArea.of_paths([(e.path, e.lane_width_m) for e in edges])
     lo = (min(start[0], goal[0]) - MAP_MARGIN_M, min(start[1], goal[1]) - MAP_MARGIN_M)
     hi = (max(start[0], goal[0]) + MAP_MARGIN_M, max(start[1], goal[1]) + MAP_MARGIN_M)
-    grid = blank_map(lo, hi)
-    rr, cc = np.mgrid[0 : grid.shape[0], 0 : grid.shape[1]]
-    cx, cy = grid.centre_of(rr, cc)
-    off = GridMap(own.excess_m(cx, cy) > ROAD_EDGE_SLACK_M, grid.resolution_m, grid.origin_xy_m)
     s_then = np.linspace(turn.goal_s_m, min(turn.goal_s_m + THEN_M, view.length_m), 31)
     then = tuple(np.array(c) for c in zip(*(view.point_at(float(s)) for s in s_then), strict=True))
     # from where the legs will begin (the stop line), not from where we are now
     request = make_request(
-        ctx, obstacles_on(ctx, off), goal, (then[0], then[1], then[2]), fine=True,
+        ctx, road_map(ctx, own, lo, hi), goal, (then[0], then[1], then[2]), fine=True,
         reverse_factor=EXIT_REVERSE_FACTOR, directions=(1.0, 1.0), start=start,
     )  # fmt: skip
     turn.ticket = planner_of(ctx).submit(request)
@@ -208,11 +203,8 @@ def _drive(ctx: BehaviourContext, turn: ExitTurn) -> None:
         del ctx.manoeuvre_data[_KEY]
         return
     if not last:
-        if ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped:
-            ctx.select_leg(ctx.leg_index + 1)
-            leg = ctx.legs[ctx.leg_index]
-        else:
-            ctx.stop_rear_at(leg.end_s_m, "exit turn: end of a move")
+        ctx.drive_to_cusp("exit turn: end of a move")
+        leg = ctx.legs[ctx.leg_index]
     ctx.plan.stops += _stops_on_leg(leg, route_stops)
     if leg.direction == -1:
         ctx.cap(rules.SPOT_SPEED_MPS, "exit turn: reversing")

@@ -36,6 +36,7 @@ from bywire.host.navigation.grid_map import GridMap
 from bywire.host.navigation.hybrid_astar import PlannerParams, run_to_end, search
 from bywire.host.navigation.smoothing import smooth_path, split_at_cusps
 from bywire.host.navigation.tentacles import box_points
+from bywire.host.roadnet.road_area import RoadArea
 
 from . import rules
 from .context import BehaviourContext
@@ -44,8 +45,8 @@ from .situation import Direction
 
 __all__ = [
     "ROAD_EDGE_SLACK_M", "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs",
-    "blank_map", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of", "solve", "solve_steps",
-    "standing_points",
+    "blank_map", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of", "road_map", "solve",
+    "solve_steps", "standing_points",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
@@ -81,6 +82,16 @@ def blank_map(lo_xy_m: tuple[float, float], hi_xy_m: tuple[float, float]) -> Gri
     cols = math.ceil((hi_xy_m[0] - lo_xy_m[0]) / ZONE_CELL_M)
     rows = math.ceil((hi_xy_m[1] - lo_xy_m[1]) / ZONE_CELL_M)
     return GridMap(np.zeros((rows, cols), dtype=bool), ZONE_CELL_M, (float(lo_xy_m[0]), float(lo_xy_m[1])))
+
+
+def road_map(ctx: BehaviourContext, area: RoadArea, lo_xy_m: tuple[float, float],
+             hi_xy_m: tuple[float, float]) -> GridMap:  # fmt: skip
+    """The box from `lo_xy_m` to `hi_xy_m` as a map on which `area` is the road (its edge taken
+    `ROAD_EDGE_SLACK_M` out) and everything else an obstacle, with what stands on it (`obstacles_on`)."""
+    grid = blank_map(lo_xy_m, hi_xy_m)
+    cx, cy = grid.cell_centres()
+    off = GridMap(area.excess_m(cx, cy) > ROAD_EDGE_SLACK_M, grid.resolution_m, grid.origin_xy_m)
+    return obstacles_on(ctx, off)
 
 
 def obstacles_on(ctx: BehaviourContext, grid: GridMap) -> GridMap:
@@ -164,7 +175,7 @@ class PlanRequest:
     # where the usual search graph finds nothing: a last try at the tight margin on a finer one (short
     # arcs, a finer closed set: many short legs in a street little wider than the car is long)
     fine: bool = False
-    reverse_factor: float = 2.5  # ZONE_REVERSE_FACTOR: a metre backwards costs this many forwards
+    reverse_factor: float = ZONE_REVERSE_FACTOR
     # +1 / -1: the motion at the start and after the goal (`PlannerParams`: the other way costs a change)
     start_direction: float = 0.0
     goal_direction: float = 0.0

@@ -55,6 +55,11 @@ class GridMap:
         y = self.origin_xy_m[1] + (np.asarray(row) + 0.5) * self.resolution_m
         return x, y
 
+    def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (x_m, y_m) of every cell's centre, each (rows, cols)."""
+        rr, cc = np.mgrid[0 : self.shape[0], 0 : self.shape[1]]
+        return self.centre_of(rr, cc)
+
     def inside(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         return (row >= 0) & (row < self.shape[0]) & (col >= 0) & (col < self.shape[1])
 

@@ -76,13 +76,6 @@ def _take_plan(ctx: BehaviourContext) -> None:
     ctx.begin_legs(planned.legs)
 
 
-def _leg_done(ctx: BehaviourContext) -> bool:
-    if not ctx.legs:
-        return False
-    leg = ctx.legs[ctx.leg_index]
-    return ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped
-
-
 def _next_is(ctx: BehaviourContext, which: str) -> bool:
     """The leg after this one is the last ("last"), or one before it driven forward / backward."""
     nxt = ctx.leg_index + 1
@@ -103,7 +96,7 @@ def _first_is(ctx: BehaviourContext, which: str) -> bool:
 
 
 def _last_leg_done(ctx: BehaviourContext) -> bool:
-    return _leg_done(ctx) and ctx.leg_index + 1 >= len(ctx.legs)
+    return ctx.leg_done() and ctx.leg_index + 1 >= len(ctx.legs)
 
 
 def _next_leg(ctx: BehaviourContext) -> None:
@@ -127,15 +120,15 @@ def _kturn_activity(ctx: BehaviourContext) -> None:
 
 
 def _done_then_last(ctx: BehaviourContext) -> bool:
-    return _leg_done(ctx) and _next_is(ctx, "last")
+    return ctx.leg_done() and _next_is(ctx, "last")
 
 
 def _done_then_backward(ctx: BehaviourContext) -> bool:
-    return _leg_done(ctx) and _next_is(ctx, "backward")
+    return ctx.leg_done() and _next_is(ctx, "backward")
 
 
 def _done_then_forward(ctx: BehaviourContext) -> bool:
-    return _leg_done(ctx) and _next_is(ctx, "forward")
+    return ctx.leg_done() and _next_is(ctx, "forward")
 
 
 # where a leg before the last leads when it is done: to the state of the leg after it (the planner's

@@ -29,16 +29,14 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from bywire.host.navigation.grid_map import GridMap
 
 from .. import rules
 from ..context import BehaviourContext
 from ..lanes import AdjacentLane, adjacent_left_lane, opposite_lane_nearby
-from ..path_planning import ROAD_EDGE_SLACK_M, PlanRequest, Pose, blank_map, make_request, obstacles_on
+from ..path_planning import PlanRequest, Pose, make_request, road_map
 
-__all__ = ["road_map", "turn_request", "turn_target"]
+__all__ = ["turn_map", "turn_request", "turn_target"]
 
 GOAL_AHEAD_M = 2.0
 MAP_HALF_M = 22.0
@@ -68,14 +66,11 @@ def turn_goal(ctx: BehaviourContext, target: AdjacentLane) -> Pose | None:
     return p.x_m, p.y_m, p.heading_rad
 
 
-def road_map(ctx: BehaviourContext, start: Pose, goal: Pose) -> GridMap:
+def turn_map(ctx: BehaviourContext, start: Pose, goal: Pose) -> GridMap:
     """The road around `start` and `goal` with what stands on it (see the module docstring)."""
     mx, my = 0.5 * (start[0] + goal[0]), 0.5 * (start[1] + goal[1])
-    grid = blank_map((mx - MAP_HALF_M, my - MAP_HALF_M), (mx + MAP_HALF_M, my + MAP_HALF_M))
-    rr, cc = np.mgrid[0 : grid.shape[0], 0 : grid.shape[1]]
-    cx, cy = grid.centre_of(rr, cc)
-    off = ctx.road_area.excess_m(cx, cy) > ROAD_EDGE_SLACK_M
-    return obstacles_on(ctx, GridMap(off, grid.resolution_m, grid.origin_xy_m))
+    lo, hi = (mx - MAP_HALF_M, my - MAP_HALF_M), (mx + MAP_HALF_M, my + MAP_HALF_M)
+    return road_map(ctx, ctx.road_area, lo, hi)
 
 
 def turn_request(ctx: BehaviourContext, target: AdjacentLane) -> PlanRequest | None:
@@ -87,6 +82,6 @@ def turn_request(ctx: BehaviourContext, target: AdjacentLane) -> PlanRequest | N
     start = (ego.x_m, ego.y_m, ego.heading_rad)
     if math.hypot(goal[0] - start[0], goal[1] - start[1]) > MAP_HALF_M:
         return None
-    grid = road_map(ctx, start, goal)
+    grid = turn_map(ctx, start, goal)
     # begun and ended driving forward: we came along the lane and go on along the other
     return make_request(ctx, grid, goal, fine=True, reverse_factor=TURN_REVERSE_FACTOR, directions=(1.0, 1.0))

@@ -70,15 +70,13 @@ def drive_back(ctx: BehaviourContext) -> str:
     if not ctx.legs:
         del ctx.manoeuvre_data[_KEY]
         return "none"
-    leg = ctx.legs[ctx.leg_index]
-    at_end = ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped
-    if at_end and ctx.leg_index + 1 < len(ctx.legs):
+    if ctx.leg_done():
+        if ctx.leg_index + 1 >= len(ctx.legs):
+            ctx.end_legs()
+            del ctx.manoeuvre_data[_KEY]
+            return "done"
         ctx.select_leg(ctx.leg_index + 1)
-        leg = ctx.legs[ctx.leg_index]
-    elif at_end:
-        ctx.end_legs()
-        del ctx.manoeuvre_data[_KEY]
-        return "done"
+    leg = ctx.legs[ctx.leg_index]
     ctx.plan.leg, ctx.plan.leg_s_m = leg, ctx.leg_s_m
     ctx.stop_rear_at(leg.end_s_m, "global recovery: end of a move back onto the road")
     ctx.cap(rules.RECOVERY_CREEP_SPEED_MPS * 2.0, "global recovery: back onto the road")

@@ -80,12 +80,7 @@ def _past_gate(ctx: BehaviourContext, nav: ZoneNavigator, target: ZoneTarget) ->
 def _follow(ctx: BehaviourContext) -> None:
     nav = ctx.manoeuvre_data.get("zone")
     if ctx.legs and isinstance(nav, ZoneNavigator) and nav.planned and ctx.leg_index < nav.final_leg:
-        # a planned leg before the last ends in a stop (a cusp: the gear changes), then the next begins
-        leg = ctx.legs[ctx.leg_index]
-        if ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped:
-            ctx.select_leg(ctx.leg_index + 1)
-        else:
-            ctx.stop_rear_at(leg.end_s_m, "zone: end of a planned leg")
+        ctx.drive_to_cusp("zone: end of a planned leg")
     if (
         ctx.legs
         and isinstance(nav, ZoneNavigator)

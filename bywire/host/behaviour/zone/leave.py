@@ -31,8 +31,7 @@ def _leave_activity(ctx: BehaviourContext) -> None:
         return
     if ctx.legs and ctx.legs[ctx.leg_index].direction == -1:
         leg = ctx.legs[ctx.leg_index]
-        done = ctx.leg_s_m >= leg.end_s_m - rules.KTURN_SWITCH_DISTANCE_M and ctx.stopped
-        if not done:
+        if not ctx.leg_done():
             ctx.cap(min(rules.SPOT_SPEED_MPS, zone_speed(ctx)), "reversing out")
             ctx.stop_rear_at(leg.end_s_m, "out of the spot")
             ctx.plan.leg, ctx.plan.leg_s_m = leg, ctx.leg_s_m

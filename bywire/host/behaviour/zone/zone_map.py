@@ -35,8 +35,7 @@ def zone_map(ctx: BehaviourContext, zone_id: int) -> GridMap:
     lo = poly.min(axis=0) - MAP_PAD_M
     hi = poly.max(axis=0) + MAP_PAD_M
     grid = blank_map((float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1])))
-    rr, cc = np.mgrid[0 : grid.shape[0], 0 : grid.shape[1]]
-    cx, cy = grid.centre_of(rr, cc)
+    cx, cy = grid.cell_centres()
     blocked = ~polygon_contains(poly, cx, cy)
     gates = {ex.exit for ex in zone.perimeter.exits} | {
         ex.entry for ex in ctx.graph.network.exits() if ex.entry.segment == zone_id
