@@ -36,6 +36,7 @@ watchdog stops the car (DESIGN section 4), whatever happened to this supervisor.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import logging
 import math
@@ -84,7 +85,11 @@ def exec_stats_ms(exec_s: Reversible[float], window: int | None) -> tuple[float,
     is copied: the history holds a thousand samples, the health topic looks at a hundred, ten
     times a second for every module.
     """
-    samples = list(exec_s) if window is None else list(itertools.islice(reversed(exec_s), window))
+    # A worker's thread appends to the history while the health topic reads it: iterating the deque
+    # itself raised "deque mutated during iteration" and ended the host process in a HIL run. Its
+    # copy() is one C call under the GIL, so the window is taken from a snapshot.
+    snapshot = exec_s.copy() if isinstance(exec_s, collections.deque) else exec_s
+    samples = list(snapshot) if window is None else list(itertools.islice(reversed(snapshot), window))
     if not samples:
         return 0.0, 0.0, 0.0
     samples.sort()
