@@ -74,7 +74,9 @@ Further deviations:
 - Solver: the paper uses Goldfarb-Idnani's active set method (as in quadprog, GPL: not used here).
   The fast path `FollowQP` calls Clarabel's direct sparse interface (Apache-2.0), builds ``P`` and
   ``A`` once and only updates ``q`` and ``b`` per call; `follow_oracle` is the same problem written
-  independently in cvxpy (solved by Clarabel), the test oracle.
+  independently in cvxpy (solved by Clarabel), the test oracle. cvxpy is imported only when the
+  oracle runs: it takes a second to import, and a host that drives needs only Clarabel (it is in the
+  `test` and `bench` extras, not the runtime dependencies).
 """
 
 from __future__ import annotations
@@ -82,15 +84,17 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import clarabel
-import cvxpy as cp
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
 from bywire.host.limits import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+
+if TYPE_CHECKING:
+    import cvxpy as cp
 
 FloatArray = npt.NDArray[np.float64]
 HeadwayRef = Literal["host", "leader"]
@@ -373,6 +377,7 @@ class _OracleProblem:
 @functools.lru_cache(maxsize=64)
 def _oracle_problem(p: FollowParams) -> _OracleProblem:
     """Eq. (3) written directly in cvxpy (independent of FollowQP's matrices), parameterised (DPP)."""
+    import cvxpy as cp
     m = p.n_samples
     dt = p.dt_s
     z = cp.Variable(m - 1)
@@ -404,7 +409,9 @@ def _oracle_problem(p: FollowParams) -> _OracleProblem:
 
 
 def follow_oracle(params: FollowParams, speed_mps: float, leader: LeaderPrediction) -> FollowResult:
-    """Reference solution (cvxpy + Clarabel) of the same QP as `FollowQP.solve`."""
+    """Reference solution (cvxpy + Clarabel) of the same QP as `FollowQP.solve`; needs the `test` or
+    `bench` extra (cvxpy)."""
+    import cvxpy as cp
     _check_shapes(params, leader)
     op = _oracle_problem(params)
     g, vl = _targets(params, leader)

@@ -64,7 +64,7 @@ from .lanemap import LaneMap
 from .pose import Pose
 from .vehicles import KMH_TO_MPS, VehicleManager, VehicleState
 
-if TYPE_CHECKING:  # the QP module imports cvxpy (a second); only the hand-over needs its types
+if TYPE_CHECKING:  # only the hand-over needs the QP's types
     from bywire.host.platoon.follow_qp import FollowParams, LeaderPrediction
 
 FloatArray = npt.NDArray[np.float64]
