@@ -258,12 +258,6 @@ def search(
             h = np.maximum(h, np.hypot(x - goal[0], y - goal[1]))
         return h
 
-    def full_h(pose: Pose) -> float:
-        h = float(cheap_h(np.array([pose[0]]), np.array([pose[1]]))[0])
-        if use_kinematic:
-            h = max(h, hf.kinematic(pose))
-        return h
-
     nodes = _Nodes()
     mid = p.n_steer // 2
     root = nodes.add(start, mid, float(p.start_direction), 0.0, -1, -1)
@@ -284,9 +278,11 @@ def search(
         g = nodes.g[nid]
         if g > best_g.get(key, math.inf) + eps:
             continue  # a cheaper node took this cell
-        if heuristic != "none" and not nodes.full_h[nid]:
+        if use_kinematic and not nodes.full_h[nid]:
+            # f already holds the cheap bounds (pushed with them): the kinematic one is added lazily,
+            # computed only for nodes that reach the top of the queue
             nodes.full_h[nid] = True
-            f_full = g + w * full_h(pose)
+            f_full = g + w * hf.kinematic(pose)
             if f_full > f + eps:
                 heapq.heappush(heap, (f_full, tie, nid))
                 tie += 1
@@ -368,8 +364,7 @@ def _shot(
     cspace: CSpace, pose: Pose, goal: Pose, radius_m: float, step_m: float, candidates: int
 ) -> reeds_shepp.RsPath | None:
     """The shortest of the `candidates` shortest Reeds-Shepp paths to the goal that is free."""
-    x, y, phi = reeds_shepp.normalised(pose, goal, radius_m)
-    paths = sorted(reeds_shepp.all_paths(x, y, phi), key=lambda q: q.length)[:candidates]
+    paths = reeds_shepp.shortest_paths(*reeds_shepp.normalised(pose, goal, radius_m), candidates)
     for path in paths:
         poses, _ = reeds_shepp.sample(pose, path, radius_m, step_m)
         if not cspace.collides(poses[:, 0], poses[:, 1], poses[:, 2]).any():

@@ -18,19 +18,19 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = [
     "RsPath", "Segment", "all_paths", "normalised", "sample", "shortest_length", "shortest_normalised_length",
-    "shortest_path",
+    "shortest_path", "shortest_paths",
 ]  # fmt: skip
 
 _ZERO = 10.0 * np.finfo(float).eps
 _HALF_PI = 0.5 * math.pi
-_TWO_PI = 2.0 * math.pi
+_TWO_PI = 2.0 * math.pi  # math.remainder(a, _TWO_PI): a wrapped into [-pi, pi] in one C call
 
 
 @dataclass(frozen=True)
@@ -54,49 +54,38 @@ class RsPath:
         return sum(1 for a, b in itertools.pairwise(signs) if a != b)
 
 
-def _mod2pi(x: float) -> float:
-    v = math.fmod(x, _TWO_PI)
-    if v < -math.pi:
-        v += _TWO_PI
-    elif v > math.pi:
-        v -= _TWO_PI
-    return v
-
-
-def _polar(x: float, y: float) -> tuple[float, float]:
-    return math.hypot(x, y), math.atan2(y, x)
-
-
 def _tau_omega(u: float, v: float, xi: float, eta: float, phi: float) -> tuple[float, float]:
-    delta = _mod2pi(u - v)
+    delta = math.remainder(u - v, _TWO_PI)
     a = math.sin(u) - math.sin(delta)
     b = math.cos(u) - math.cos(delta) - 1.0
     t1 = math.atan2(eta * a - xi * b, xi * a + eta * b)
     t2 = 2.0 * (math.cos(delta) - math.cos(v) - math.cos(u)) + 3.0
-    tau = _mod2pi(t1 + math.pi) if t2 < 0 else _mod2pi(t1)
-    return tau, _mod2pi(tau - u + v - phi)
+    tau = math.remainder(t1 + math.pi, _TWO_PI) if t2 < 0 else math.remainder(t1, _TWO_PI)
+    return tau, math.remainder(tau - u + v - phi, _TWO_PI)
 
 
 # ---------------------------------------------------------------------------------- the words (sec. 8)
 
 
 def _lp_sp_lp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.1
-    u, t = _polar(x - math.sin(phi), y - 1.0 + math.cos(phi))
+    a, b = x - math.sin(phi), y - 1.0 + math.cos(phi)
+    u, t = math.hypot(a, b), math.atan2(b, a)
     if t >= -_ZERO:
-        v = _mod2pi(phi - t)
+        v = math.remainder(phi - t, _TWO_PI)
         if v >= -_ZERO:
             return t, u, v
     return None
 
 
 def _lp_sp_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.2
-    u1, t1 = _polar(x + math.sin(phi), y - 1.0 - math.cos(phi))
+    a, b = x + math.sin(phi), y - 1.0 - math.cos(phi)
+    u1, t1 = math.hypot(a, b), math.atan2(b, a)
     u1 = u1 * u1
     if u1 >= 4.0:
         u = math.sqrt(u1 - 4.0)
         theta = math.atan2(2.0, u)
-        t = _mod2pi(t1 + theta)
-        v = _mod2pi(t - phi)
+        t = math.remainder(t1 + theta, _TWO_PI)
+        v = math.remainder(t - phi, _TWO_PI)
         if t >= -_ZERO and v >= -_ZERO:
             return t, u, v
     return None
@@ -104,11 +93,11 @@ def _lp_sp_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | No
 
 def _lp_rm_l(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.3
     xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
-    u1, theta = _polar(xi, eta)
+    u1, theta = math.hypot(xi, eta), math.atan2(eta, xi)
     if u1 <= 4.0:
         u = -2.0 * math.asin(0.25 * u1)
-        t = _mod2pi(theta + 0.5 * u + math.pi)
-        v = _mod2pi(phi - t + u)
+        t = math.remainder(theta + 0.5 * u + math.pi, _TWO_PI)
+        v = math.remainder(phi - t + u, _TWO_PI)
         if t >= -_ZERO and u <= _ZERO:
             return t, u, v
     return None
@@ -139,12 +128,12 @@ def _lp_rum_lum_rp(x: float, y: float, phi: float) -> tuple[float, float, float]
 
 def _lp_rm_sm_lm(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.9
     xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
-    rho, theta = _polar(xi, eta)
+    rho, theta = math.hypot(xi, eta), math.atan2(eta, xi)
     if rho >= 2.0:
         r = math.sqrt(rho * rho - 4.0)
         u = 2.0 - r
-        t = _mod2pi(theta + math.atan2(r, -2.0))
-        v = _mod2pi(phi - _HALF_PI - t)
+        t = math.remainder(theta + math.atan2(r, -2.0), _TWO_PI)
+        v = math.remainder(phi - _HALF_PI - t, _TWO_PI)
         if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
             return t, u, v
     return None
@@ -152,11 +141,11 @@ def _lp_rm_sm_lm(x: float, y: float, phi: float) -> tuple[float, float, float] |
 
 def _lp_rm_sm_rm(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.10
     xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
-    rho, theta = _polar(-eta, xi)
+    rho, theta = math.hypot(eta, xi), math.atan2(xi, -eta)
     if rho >= 2.0:
         t = theta
         u = 2.0 - rho
-        v = _mod2pi(t + _HALF_PI - phi)
+        v = math.remainder(t + _HALF_PI - phi, _TWO_PI)
         if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
             return t, u, v
     return None
@@ -164,12 +153,12 @@ def _lp_rm_sm_rm(x: float, y: float, phi: float) -> tuple[float, float, float] |
 
 def _lp_rm_slm_rp(x: float, y: float, phi: float) -> tuple[float, float, float] | None:  # 8.11
     xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
-    rho, _ = _polar(xi, eta)
+    rho = math.hypot(xi, eta)
     if rho >= 2.0:
         u = 4.0 - math.sqrt(rho * rho - 4.0)
         if u <= _ZERO:
-            t = _mod2pi(math.atan2((4.0 - u) * xi - 2.0 * eta, -2.0 * xi + (u - 4.0) * eta))
-            v = _mod2pi(t - phi)
+            t = math.remainder(math.atan2((4.0 - u) * xi - 2.0 * eta, -2.0 * xi + (u - 4.0) * eta), _TWO_PI)
+            v = math.remainder(t - phi, _TWO_PI)
             if t >= -_ZERO and v >= -_ZERO:
                 return t, u, v
     return None
@@ -186,15 +175,7 @@ def _path(word: str, lengths: tuple[float, ...], reflect: bool) -> RsPath:
     return RsPath(tuple(Segment(s, v) for s, v in zip(steers, lengths, strict=True)))
 
 
-def _symmetric(solve: object, word: str, x: float, y: float, phi: float, shape: str) -> Iterator[RsPath]:
-    """The word and its three mirror images (time flip, reflection, both); `shape` maps (t, u, v) and
-    the sign of time to the segment lengths."""
-    assert callable(solve)
-    for sx, sy, reflect in ((1.0, 1.0, False), (-1.0, 1.0, False), (1.0, -1.0, True), (-1.0, -1.0, True)):
-        sphi = phi * sx * sy
-        r = solve(sx * x, sy * y, sphi)
-        if r is not None:
-            yield _path(word, _shape(shape, r, sx), reflect)
+_MIRRORS = ((1.0, 1.0, False), (-1.0, 1.0, False), (1.0, -1.0, True), (-1.0, -1.0, True))
 
 
 def _shape(shape: str, r: tuple[float, float, float], sign: float) -> tuple[float, ...]:
@@ -218,31 +199,16 @@ def _shape(shape: str, r: tuple[float, float, float], sign: float) -> tuple[floa
     return tuple(sign * a for a in out)
 
 
-def all_paths(x: float, y: float, phi: float) -> list[RsPath]:
-    """Every Reeds-Shepp candidate from (0, 0, 0) to (x, y, phi), unit turning radius."""
-    out: list[RsPath] = []
-    out += _symmetric(_lp_sp_lp, "LSL", x, y, phi, "tuv")
-    out += _symmetric(_lp_sp_rp, "LSR", x, y, phi, "tuv")
-    out += _symmetric(_lp_rm_l, "LRL", x, y, phi, "tuv")
-    c, s = math.cos(phi), math.sin(phi)
-    xb, yb = x * c + y * s, x * s - y * c
-    out += _symmetric(_lp_rm_l, "LRL", xb, yb, phi, "vut")
-    out += _symmetric(_lp_rup_lum_rm, "LRLR", x, y, phi, "tuUv")
-    out += _symmetric(_lp_rum_lum_rp, "LRLR", x, y, phi, "tuuv")
-    out += _symmetric(_lp_rm_sm_lm, "LRSL", x, y, phi, "tHuv")
-    out += _symmetric(_lp_rm_sm_rm, "LRSR", x, y, phi, "tHuv")
-    out += _symmetric(_lp_rm_sm_lm, "LSRL", xb, yb, phi, "vuHt")
-    out += _symmetric(_lp_rm_sm_rm, "RSRL", xb, yb, phi, "vuHt")
-    out += _symmetric(_lp_rm_slm_rp, "LRSLR", x, y, phi, "tHuHv")
-    return out
-
-
-# (solver, frame, shape) of every word: `shortest_length` walks them without building paths
-_WORDS: tuple[tuple[object, bool, str], ...] = (
-    (_lp_sp_lp, False, "tuv"), (_lp_sp_rp, False, "tuv"), (_lp_rm_l, False, "tuv"), (_lp_rm_l, True, "vut"),
-    (_lp_rup_lum_rm, False, "tuUv"), (_lp_rum_lum_rp, False, "tuuv"), (_lp_rm_sm_lm, False, "tHuv"),
-    (_lp_rm_sm_rm, False, "tHuv"), (_lp_rm_sm_lm, True, "vuHt"), (_lp_rm_sm_rm, True, "vuHt"),
-    (_lp_rm_slm_rp, False, "tHuHv"),
+# (solver, word, frame, shape) of every word, in the order of Reeds and Shepp's section 8; each is solved
+# with its three mirror images (`_MIRRORS`: time flip, reflection, both), `shape` maps (t, u, v) and the
+# sign of time to the segment lengths
+_Solver = Callable[[float, float, float], "tuple[float, float, float] | None"]
+_WORDS: tuple[tuple[_Solver, str, bool, str], ...] = (
+    (_lp_sp_lp, "LSL", False, "tuv"), (_lp_sp_rp, "LSR", False, "tuv"), (_lp_rm_l, "LRL", False, "tuv"),
+    (_lp_rm_l, "LRL", True, "vut"), (_lp_rup_lum_rm, "LRLR", False, "tuUv"),
+    (_lp_rum_lum_rp, "LRLR", False, "tuuv"), (_lp_rm_sm_lm, "LRSL", False, "tHuv"),
+    (_lp_rm_sm_rm, "LRSR", False, "tHuv"), (_lp_rm_sm_lm, "LSRL", True, "vuHt"),
+    (_lp_rm_sm_rm, "RSRL", True, "vuHt"), (_lp_rm_slm_rp, "LRSLR", False, "tHuHv"),
 )  # fmt: skip
 _EXTRA = {
     "tuv": 0.0,
@@ -254,23 +220,47 @@ _EXTRA = {
     "tHuHv": math.pi,
 }
 _U_TWICE = {"tuUv", "tuuv"}
+_Solution = tuple[float, str, str, tuple[float, float, float], float, bool]
+
+
+def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
+    """(length in radii, word, shape, (t, u, v), sign of time, reflected) of every word's solution, in
+    the order of `_WORDS` and `_MIRRORS`; paths are built only for those that are wanted."""
+    c, s = math.cos(phi), math.sin(phi)
+    xb, yb = x * c + y * s, x * s - y * c
+    out: list[_Solution] = []
+    for solve, word, backwards, shape in _WORDS:
+        px, py = (xb, yb) if backwards else (x, y)
+        twice = shape in _U_TWICE
+        extra = _EXTRA[shape]
+        for sx, sy, reflect in _MIRRORS:
+            r = solve(sx * px, sy * py, phi * sx * sy)
+            if r is not None:
+                t, u, v = r
+                length = abs(t) + abs(u) * (2.0 if twice else 1.0) + abs(v) + extra
+                out.append((length, word, shape, r, sx, reflect))
+    return out
+
+
+def _build(solution: _Solution) -> RsPath:
+    _, word, shape, r, sign, reflect = solution
+    return _path(word, _shape(shape, r, sign), reflect)
+
+
+def all_paths(x: float, y: float, phi: float) -> list[RsPath]:
+    """Every Reeds-Shepp candidate from (0, 0, 0) to (x, y, phi), unit turning radius."""
+    return [_build(sol) for sol in _solutions(x, y, phi)]
+
+
+def shortest_paths(x: float, y: float, phi: float, count: int) -> list[RsPath]:
+    """The `count` shortest candidates (in the normalised frame), shortest first."""
+    ranked = sorted(_solutions(x, y, phi), key=lambda sol: sol[0])
+    return [_build(sol) for sol in ranked[:count]]
 
 
 def shortest_normalised_length(x: float, y: float, phi: float) -> float:
     """The shortest path's length in radii, in the normalised frame (what `all_paths` finds, faster)."""
-    c, s = math.cos(phi), math.sin(phi)
-    xb, yb = x * c + y * s, x * s - y * c
-    best = math.inf
-    for solve, backwards, shape in _WORDS:
-        px, py = (xb, yb) if backwards else (x, y)
-        for sx, sy in ((1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)):
-            r = solve(sx * px, sy * py, phi * sx * sy)  # type: ignore[operator]
-            if r is not None:
-                t, u, v = r
-                length = abs(t) + abs(u) * (2.0 if shape in _U_TWICE else 1.0) + abs(v) + _EXTRA[shape]
-                if length < best:
-                    best = length
-    return best
+    return min((sol[0] for sol in _solutions(x, y, phi)), default=math.inf)
 
 
 def normalised(
@@ -280,7 +270,8 @@ def normalised(
         raise ValueError(f"reeds_shepp: radius_m = {radius_m} must be finite and > 0")
     dx, dy = goal[0] - start[0], goal[1] - start[1]
     c, s = math.cos(start[2]), math.sin(start[2])
-    return (c * dx + s * dy) / radius_m, (-s * dx + c * dy) / radius_m, _mod2pi(goal[2] - start[2])
+    phi = math.remainder(goal[2] - start[2], _TWO_PI)
+    return (c * dx + s * dy) / radius_m, (-s * dx + c * dy) / radius_m, phi
 
 
 def shortest_path(
