@@ -18,15 +18,29 @@ NaN payloads included; Foxglove shows these as opaque byte arrays). Nested seque
 heterogeneous tuples are refused: Foxglove's JSON Schema parser cannot show arrays of arrays, so
 use a tuple of a small dataclass or a numpy array.
 
-The schemas are written for Foxglove's parser, which accepts exactly one `type` per field: an
-Optional field carries its inner type's schema (null in the data means None), and a float field
-says "number" although it may hold one of the strings below.
+The schemas are written for Foxglove's parser, which accepts exactly one `type` per field, and every
+message is valid JSON (RFC 8259) that validates against its own schema (a JSON Schema validator, e.g.
+`jsonschema`, accepts every message of a recorded run). What JSON cannot spell is written so:
 
-Non-finite floats: JSON has no NaN, so NaN, +inf and -inf are written as the strings "NaN",
-"Infinity" and "-Infinity" (JavaScript's spellings). Every finite float is written with Python's
-shortest round-trip repr, so decoding gives back bit-identical floats (replay compares exactly);
-null stays reserved for None, so NaN and None remain distinct. Foxglove plots such a sample as a
-gap, which is what a NaN is.
+- NaN in a float field is the field left out: float fields are not `required`, and a float field
+  that is absent reads back as NaN. Foxglove plots the missing sample as a gap, which is what a
+  NaN is.
+- None in an `X | None` field is the field left out too; the field's schema says so with the
+  annotation `"default": null` (which is also how a reader tells an optional float from a float).
+- NaN where no field can be left out (an item of `tuple[float, ...]`, or an `float | None` field,
+  where leaving out means None) is null. JSON offers nothing else; a strict validator refuses a
+  null there, so the types we record keep NaN out of float arrays and have no `float | None`
+  fields (what the recorded-run tests check). Arrays of `X | None` are refused: their null would
+  have no single type for Foxglove.
+- +inf and -inf are the numbers 1e999 and -1e999: valid JSON numbers (RFC 8259 sec. 6 lets a
+  parser choose its range) that Python's json and JavaScript's JSON.parse, hence Foxglove, read as
+  +-Infinity.
+
+Every finite float is written with Python's shortest round-trip repr, so decoding gives back
+bit-identical floats (replay compares exactly). Recordings written before this convention (NaN,
+Infinity and -Infinity as strings; None as null) still decode: a reader is given the schema the
+file holds (`decode_message`) and follows what its writer meant, also for fields the writer did
+not know yet (they take their class default).
 
 Time. A message's time is its object's own `t_s` on the run's clock; `time_ns` gives the unsigned
 nanoseconds that MCAP and Foxglove count in (0 for what they cannot hold).
@@ -67,6 +81,12 @@ _NUMPY_DTYPE = re.compile(r"[<>|][biufc]\d{1,2}")
 _MAX_NDIM = 32
 # allow_nan=False: a non-finite float that slipped past the codecs must fail, not write bad JSON.
 _JSON = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+_PLUS_INFINITY, _MINUS_INFINITY = "1e999", "-1e999"
+
+NONFINITE_CONVENTION = (
+    "bywire recording: a float field left out is NaN; a field with default null left out is None; "
+    "NaN in an array or in an optional float is null; +-infinity is 1e999 / -1e999"
+)
 
 
 class LogError(ValueError):
@@ -102,21 +122,39 @@ class _FieldError(Exception):
 
 @dataclass(frozen=True)
 class _Codec:
+    """How one Python type is written: its schema, and its encoder and decoder.
+
+    `decode(value, writer)` gets the schema the writer of the value used, as the file holds it (None:
+    written by this code). A dataclass field whose value `left_out(value)` says is written by
+    leaving the field out, and an absent field reads back as `absent()`.
+    """
+
     schema: dict[str, Any]
     item_schema: dict[str, Any]  # the schema as an array item: Foxglove takes less there
     encode: Callable[[Any], Any]
-    decode: Callable[[Any], Any]
+    decode: Callable[[Any, Any], Any]
+    left_out: Callable[[Any], bool] | None = None
+    absent: Callable[[], Any] | None = None
 
 
-def _encode_float(v: Any) -> Any:
+def _plain(decode: Callable[[Any], Any]) -> Callable[[Any, Any], Any]:
+    """A decoder that reads the same whatever the writer's schema."""
+    return lambda v, _writer: decode(v)
+
+
+def _is_nan(v: Any) -> bool:
+    return isinstance(v, float | np.floating) and v != v
+
+
+def _encode_float(v: Any) -> float | None:
+    """A float as JSON: null for NaN (only where its field cannot be left out), +-inf as is (the
+    serializer writes them +-1e999)."""
     # float(): float subclasses (np.float64) and numpy scalars become plain floats for the JSON encoder.
     if isinstance(v, float | int | np.integer | np.floating) and not isinstance(v, bool | np.bool_):
         f = float(v)
     else:
         raise _FieldError(f"expected a number, got {type(v).__name__}")
-    if math.isfinite(f):
-        return f
-    return "NaN" if f != f else ("Infinity" if f > 0 else "-Infinity")
+    return None if f != f else f
 
 
 def _decode_float(v: Any) -> float:
@@ -124,7 +162,9 @@ def _decode_float(v: Any) -> float:
         return v
     if isinstance(v, int) and not isinstance(v, bool):
         return float(v)
-    if isinstance(v, str) and v in _JSON_TO_NONFINITE:
+    if v is None:
+        return math.nan
+    if isinstance(v, str) and v in _JSON_TO_NONFINITE:  # recordings of the older convention
         return _JSON_TO_NONFINITE[v]
     raise _FieldError(f"expected a number, got {_json_kind(v)}")
 
@@ -226,7 +266,6 @@ def _json_kind(v: Any) -> str:
 
 
 _SCALARS: dict[type, tuple[dict[str, Any], Callable[[Any], Any], Callable[[Any], Any]]] = {
-    float: ({"type": "number"}, _encode_float, _decode_float),
     int: ({"type": "integer"}, _encode_int, _decode_int),
     bool: ({"type": "boolean"}, _encode_bool, _decode_bool),
     str: ({"type": "string"}, _encode_str, _decode_str),
@@ -252,18 +291,21 @@ def _codec(tp: Any, building: tuple[type, ...] = ()) -> _Codec:
 
 
 def _build_codec(tp: Any, building: tuple[type, ...]) -> _Codec:
+    if tp is float:
+        number: dict[str, Any] = {"type": "number"}
+        return _Codec(number, number, _encode_float, _plain(_decode_float), _is_nan, lambda: math.nan)
     if tp in _SCALARS:
-        schema, enc, dec = _SCALARS[tp]
-        return _Codec(schema, schema, enc, dec)
+        scalar, enc, dec = _SCALARS[tp]
+        return _Codec(scalar, scalar, enc, _plain(dec))
     if tp is bytes:
         return _Codec(
             {"type": "string", "contentEncoding": "base64"},
             {"type": "string", "description": "base64"},
             _encode_bytes,
-            _decode_bytes,
+            _plain(_decode_bytes),
         )
     if tp is np.ndarray or typing.get_origin(tp) is np.ndarray:
-        schema = {
+        schema: dict[str, Any] = {
             "type": "object",
             "description": "numpy array: data is the base64 of the C-order bytes of dtype and shape",
             "properties": {
@@ -273,7 +315,7 @@ def _build_codec(tp: Any, building: tuple[type, ...]) -> _Codec:
             },
             "required": ["dtype", "shape", "data"],
         }
-        return _Codec(schema, schema, _encode_ndarray, _decode_ndarray)
+        return _Codec(schema, schema, _encode_ndarray, _plain(_decode_ndarray))
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         return _enum_codec(tp)
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
@@ -282,7 +324,7 @@ def _build_codec(tp: Any, building: tuple[type, ...]) -> _Codec:
     if origin in (typing.Union, types.UnionType):
         inner = [a for a in args if a is not type(None)]
         if len(inner) == 1 and len(args) == 2:
-            return _optional_codec(_codec(inner[0], building))
+            return _optional_codec(_codec(inner[0], building), inner[0] is float)
         raise _FieldError(f"type {_type_name(tp)} is not supported: of unions only X | None is")
     if origin in (tuple, list, Sequence):
         return _sequence_codec(tp, origin, args, building)
@@ -293,14 +335,22 @@ def _type_name(tp: Any) -> str:
     return tp.__name__ if isinstance(tp, type) else repr(tp).replace("typing.", "")
 
 
-def _optional_codec(inner: _Codec) -> _Codec:
+def _optional_codec(inner: _Codec, holds_float: bool) -> _Codec:
+    """`X | None`: None is the field left out, and `"default": null` in the schema says so. In a
+    `float | None` field NaN is null; in recordings of the older convention (no default in the
+    writer's schema) null was None."""
+
     def enc(v: Any) -> Any:
         return None if v is None else inner.encode(v)
 
-    def dec(v: Any) -> Any:
-        return None if v is None else inner.decode(v)
+    def dec(v: Any, writer: Any) -> Any:
+        if v is None:
+            new_convention = not isinstance(writer, dict) or "default" in writer
+            return math.nan if holds_float and new_convention else None
+        return inner.decode(v, writer)
 
-    return _Codec(inner.schema, inner.item_schema, enc, dec)
+    schema = {**inner.schema, "default": None}
+    return _Codec(schema, inner.item_schema, enc, dec, lambda v: v is None, lambda: None)
 
 
 def _sequence_codec(tp: Any, origin: Any, args: tuple[Any, ...], building: tuple[type, ...]) -> _Codec:
@@ -322,6 +372,11 @@ def _sequence_codec(tp: Any, origin: Any, args: tuple[Any, ...], building: tuple
             f"type {_type_name(tp)} is not supported: Foxglove cannot show arrays of arrays "
             "(use a tuple of a dataclass or a numpy array)"
         )
+    if item_origin in (typing.Union, types.UnionType):
+        raise _FieldError(
+            f"type {_type_name(tp)} is not supported: an item that may be None would be null, "
+            "which no single item type of a JSON Schema admits (use a dataclass with an optional field)"
+        )
     item = _codec(item_type, building)
     schema: dict[str, Any] = {"type": "array", "items": item.item_schema}
     if length is not None:
@@ -342,15 +397,16 @@ def _sequence_codec(tp: Any, origin: Any, args: tuple[Any, ...], building: tuple
                 raise exc.at(f"[{i}]") from None
         return out
 
-    def dec(v: Any) -> Any:
+    def dec(v: Any, writer: Any) -> Any:
         if not isinstance(v, list):
             raise _FieldError(f"expected an array, got {_json_kind(v)}")
         if length is not None and len(v) != length:
             raise _FieldError(f"expected {length} items, got {len(v)}")
+        item_writer = writer.get("items") if isinstance(writer, dict) else None
         out = []
         for i, x in enumerate(v):
             try:
-                out.append(item.decode(x))
+                out.append(item.decode(x, item_writer))
             except _FieldError as exc:
                 raise exc.at(f"[{i}]") from None
         return make(out)
@@ -401,7 +457,7 @@ def _enum_codec(cls: type[enum.Enum]) -> _Codec:
         except ValueError as exc:
             raise _FieldError(f"{v!r} is not a {cls.__name__}") from exc
 
-    return _Codec(schema, item_schema, enc, dec)
+    return _Codec(schema, item_schema, enc, _plain(dec))
 
 
 def _dataclass_codec(cls: type, building: tuple[type, ...]) -> _Codec:
@@ -427,11 +483,11 @@ def _dataclass_codec(cls: type, building: tuple[type, ...]) -> _Codec:
         "title": schema_name_of(cls),
         "type": "object",
         "properties": {name: c.schema for name, c in codecs},
-        "required": [name for name, c in codecs if name in required and not _is_optional(hints[name])],
+        "required": [name for name, c in codecs if name in required and c.left_out is None],
         "additionalProperties": False,
     }
     names = {name for name, _ in codecs}
-    missing_ok = {name for name, _ in codecs if name not in required}
+    missing_ok = {name for name, _ in codecs if name not in required}  # they have a default
     retired = _retired_by_type.get(cls, frozenset())
 
     def enc(v: Any) -> dict[str, Any]:
@@ -439,13 +495,16 @@ def _dataclass_codec(cls: type, building: tuple[type, ...]) -> _Codec:
             raise _FieldError(f"expected a {cls.__name__}, got {type(v).__name__}")
         out = {}
         for name, c in codecs:
+            value = getattr(v, name)
+            if c.left_out is not None and c.left_out(value):
+                continue
             try:
-                out[name] = c.encode(getattr(v, name))
+                out[name] = c.encode(value)
             except _FieldError as exc:
                 raise exc.at(name) from None
         return out
 
-    def dec(v: Any) -> Any:
+    def dec(v: Any, writer: Any) -> Any:
         if not isinstance(v, dict):
             raise _FieldError(f"expected an object for {cls.__name__}, got {_json_kind(v)}")
         unknown = v.keys() - names - retired
@@ -453,13 +512,20 @@ def _dataclass_codec(cls: type, building: tuple[type, ...]) -> _Codec:
             raise _FieldError(
                 f"fields {sorted(unknown)} are not in {cls.__name__} (recorded with another version of it?)"
             )
+        written = writer.get("properties") if isinstance(writer, dict) else None
+        if not isinstance(written, dict):
+            written = None  # written by this code (or an unreadable schema): every field was known
         kwargs = {}
         for name, c in codecs:
             if name in v:
                 try:
-                    kwargs[name] = c.decode(v[name])
+                    kwargs[name] = c.decode(v[name], None if written is None else written.get(name))
                 except _FieldError as exc:
                     raise exc.at(name) from None
+            elif name in missing_ok and written is not None and name not in written:
+                pass  # a field its writer did not know yet: the class default
+            elif c.absent is not None:
+                kwargs[name] = c.absent()  # left out: NaN, None
             elif name not in missing_ok:
                 raise _FieldError(f"field {name!r} of {cls.__name__} is missing")
         try:
@@ -468,10 +534,6 @@ def _dataclass_codec(cls: type, building: tuple[type, ...]) -> _Codec:
             raise _FieldError(f"{cls.__name__} refused the recorded values: {exc}") from exc
 
     return _Codec(schema, schema, enc, dec)
-
-
-def _is_optional(tp: Any) -> bool:
-    return typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp)
 
 
 # -- the type registry ----------------------------------------------------------------------------------
@@ -548,9 +610,7 @@ def json_schema(cls: type) -> dict[str, Any]:
         schema = dict(_codec(cls).schema)
     except _FieldError as exc:
         raise LogError("<schema>", exc.describe(cls.__qualname__)) from None
-    schema["$comment"] = (
-        "bywire recording: non-finite floats are the strings NaN, Infinity, -Infinity; null is None"
-    )
+    schema["$comment"] = NONFINITE_CONVENTION
     return schema
 
 
@@ -567,14 +627,31 @@ def encode_object(obj: object) -> bytes:
         payload = _codec(cls).encode(obj)
     except _FieldError as exc:
         raise LogError("<encode>", exc.describe(cls.__qualname__)) from None
-    return _JSON.encode(payload).encode()
+    try:
+        return _JSON.encode(payload).encode()
+    except ValueError:  # an infinity (NaN never gets here): the rare case, written by hand
+        return _json_with_infinities(payload).encode()
+
+
+def _json_with_infinities(value: Any) -> str:
+    """What `_JSON` writes, with +-inf as the numbers +-1e999 (finite floats by the same repr)."""
+    if isinstance(value, float):
+        if math.isinf(value):
+            return _PLUS_INFINITY if value > 0 else _MINUS_INFINITY
+        return _JSON.encode(value)
+    if isinstance(value, dict):
+        items = (f"{_JSON.encode(k)}:{_json_with_infinities(v)}" for k, v in value.items())
+        return "{" + ",".join(items) + "}"
+    if isinstance(value, list):
+        return "[" + ",".join(_json_with_infinities(v) for v in value) + "]"
+    return _JSON.encode(value)
 
 
 def decode_object(cls: type[T], data: bytes | dict[str, Any]) -> T:
     """Decode one JSON message (bytes or already parsed) into `cls` (LogError naming the field)."""
     try:
         raw = json.loads(data) if isinstance(data, bytes | bytearray) else data
-        return typing.cast(T, _codec(cls).decode(raw))
+        return typing.cast(T, _codec(cls).decode(raw, None))
     except _FieldError as exc:
         raise LogError("<decode>", exc.describe(cls.__qualname__)) from None
     except (ValueError, RecursionError) as exc:
@@ -606,10 +683,12 @@ def decode_message(
 ) -> tuple[Any, dict[str, Any]]:
     """Decode one recorded JSON message whose schema is named `schema_name`: (object, JSON as stored).
 
-    The object is an instance of the type registered under that name, else the stored dict with the
-    non-finite floats restored where `file_schema()` (the message's JSON Schema as the file holds
-    it, parsed, or None; only called for unregistered types) says number. LogError("<decode>", the
-    problem) if the message is not JSON, not an object, or does not fit its registered type.
+    The object is an instance of the type registered under that name, else the stored dict with what
+    JSON cannot spell restored where `file_schema()` (the message's JSON Schema as the file holds it,
+    parsed, or None) says number: a number field left out or null is NaN, a field with default null
+    left out is None. The file's schema also tells the registered types which convention and which
+    fields the writer knew. LogError("<decode>", the problem) if the message is not JSON, not an
+    object, or does not fit its registered type.
     """
     try:
         raw = json.loads(data)
@@ -621,23 +700,35 @@ def decode_message(
     if cls is None:
         return _restore_nonfinite(raw, file_schema()), raw
     try:
-        return _codec(cls).decode(raw), raw
+        return _codec(cls).decode(raw, file_schema()), raw
     except _FieldError as exc:
         raise LogError("<decode>", exc.describe(cls.__qualname__)) from None
     except RecursionError:
         raise LogError("<decode>", "nested too deeply") from None
 
 
-def _restore_nonfinite(value: Any, schema: Any, depth: int = 0) -> Any:
+def _restore_nonfinite(value: Any, schema: Any, depth: int = 0, in_array: bool = False) -> Any:
     if depth > 64 or not isinstance(schema, dict):
         return value
     kind = schema.get("type")
-    if kind == "number" and isinstance(value, str):
-        return _JSON_TO_NONFINITE.get(value, value)
+    if kind == "number":
+        if isinstance(value, str):  # the older convention's strings
+            return _JSON_TO_NONFINITE.get(value, value)
+        if value is None and (in_array or "default" in schema):
+            return math.nan  # an optional float without a default is the older convention's None
+        return value
     if kind == "object" and isinstance(value, dict):
         props = schema.get("properties")
         if isinstance(props, dict):
-            return {k: _restore_nonfinite(v, props.get(k), depth + 1) for k, v in value.items()}
+            out = {k: _restore_nonfinite(v, props.get(k), depth + 1) for k, v in value.items()}
+            for k, prop in props.items():
+                if k in out or not isinstance(prop, dict):
+                    continue
+                if "default" in prop:
+                    out[k] = prop["default"]
+                elif prop.get("type") == "number":
+                    out[k] = math.nan
+            return out
     if kind == "array" and isinstance(value, list):
-        return [_restore_nonfinite(v, schema.get("items"), depth + 1) for v in value]
+        return [_restore_nonfinite(v, schema.get("items"), depth + 1, in_array=True) for v in value]
     return value

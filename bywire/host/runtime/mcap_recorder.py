@@ -38,6 +38,7 @@ import bywire
 from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX, CanFrame
 from bywire.host.runtime.log_schema import (
     MESSAGE_ENCODING,
+    NONFINITE_CONVENTION,
     SCHEMA_ENCODING,
     LogError,
     encode_object,
@@ -127,7 +128,7 @@ class McapRecorder:
             "bywire",
             {
                 "log_time": "t_s * 1e9 on the run's clock (simulated in SIL, CLOCK_MONOTONIC in HIL)",
-                "nonfinite_floats": "strings NaN, Infinity, -Infinity",
+                "nonfinite_floats": NONFINITE_CONVENTION,
             },
         )
         self._schemas: dict[str, int] = {}  # schema name -> id

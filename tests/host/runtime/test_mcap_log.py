@@ -20,9 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+import jsonschema
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer
 from runtime_log_types import Faults, Mode, Point, Pose, Source, Status, Tick
 
 from bywire.host import log_cli
@@ -130,12 +132,11 @@ def test_round_trip_of_every_field_kind(tmp_path: Path) -> None:
     assert got_poses[0] == poses[0] and got_poses[1].source is Source.ODOMETRY
     assert math.isinf(got_poses[1].x_m) and _same_float(got_poses[1].v_mps, -0.0)
     assert type(got_poses[2].t_s) is float and got_poses[2].t_s == 2.0 and math.isnan(got_poses[2].x_m)
-    # The JSON as stored: the non-finite floats as strings, None as null, enums as values.
+    # The JSON as stored: a NaN field left out, infinities as the numbers +-1e999, enums as values.
     raw = statuses[0].raw
-    assert (
-        raw["speed_mps"] == "NaN" and raw["path"][0]["y_m"] == "-Infinity" and raw["corner"][0] == "Infinity"
-    )
-    assert raw["mode"] == 2 and raw["faults"] == 6 and raw["gap_m"] == -1.5
+    assert "speed_mps" not in raw and "lead" not in statuses[3].raw
+    assert raw["path"][0]["y_m"] == -math.inf and raw["corner"][0] == math.inf
+    assert raw["mode"] == 2 and raw["faults"] == 6 and raw["gap_m"] == -1.5 and "gap_m" not in statuses[1].raw
     assert [e.obj for e in read_objects(path, topics=["/ego/pose"])] == got_poses
 
 
@@ -154,7 +155,100 @@ def test_unregistered_types_decode_as_dicts_with_non_finite_floats_restored(tmp_
     assert isinstance(entry.obj, dict) and entry.schema_name.endswith("Local")
     assert math.isnan(entry.obj["value"]) and entry.obj["label"] == "NaN"  # a string field stays a string
     assert entry.obj["items"] == [math.inf, 2.0]
-    assert entry.raw["value"] == "NaN"
+    assert "value" not in entry.raw  # left out in the file, NaN again in the dict
+
+
+def _no_constants(name: str) -> None:
+    raise AssertionError(f"{name} is not JSON (RFC 8259)")
+
+
+def test_every_message_is_json_that_validates_against_its_own_schema(tmp_path: Path) -> None:
+    """What tools other than ours do with a recording: parse strict JSON, validate it by its schema."""
+    path = tmp_path / "run.mcap"
+    with McapRecorder(path) as rec:
+        for k, lead in enumerate((None, Point(math.nan, -math.inf), Point(1.0, 2.0))):
+            # NaN and None where a field can be left out; the documented null cases (NaN in an
+            # array or in a float | None) are kept out, as the types we record keep them out.
+            rec.record("/status", _status(0.1 * k, lead=lead, gap_m=None if k else math.inf))
+            rec.record("/ego/pose", Pose(0.1 * k, math.nan, -math.inf))
+    with open(path, "rb") as f:
+        seen = 0
+        for schema, _, message in make_reader(f).iter_messages():
+            doc = json.loads(message.data, parse_constant=_no_constants)
+            jsonschema.Draft202012Validator(json.loads(schema.data)).validate(doc)
+            seen += 1
+    assert seen == 6
+    statuses = [e.obj for e in read_objects(path, topics=["/status"])]
+    assert statuses[0].gap_m == math.inf and statuses[1].gap_m is None and statuses[0].lead is None
+    assert (
+        statuses[1].lead is not None
+        and math.isnan(statuses[1].lead.x_m)
+        and statuses[1].lead.y_m == -math.inf
+    )
+    poses = [e.obj for e in read_objects(path, topics=["/ego/pose"])]
+    assert all(math.isnan(p.x_m) and p.v_mps == -math.inf for p in poses)
+
+
+def test_nan_where_no_field_can_be_left_out_is_null_and_reads_back() -> None:
+    status = _status(0.0, gap_m=math.nan, corner=(math.nan, 1.0))
+    raw = json.loads(encode_object(status))
+    assert raw["gap_m"] is None and raw["corner"] == [None, 1.0]
+    got = decode_object(Status, raw)
+    assert math.isnan(got.gap_m) and math.isnan(got.corner[0])  # type: ignore[arg-type]
+    assert decode_object(Status, {k: v for k, v in raw.items() if k != "gap_m"}).gap_m is None
+
+
+def _legacy_file(path: Path, schema: dict[str, Any], messages: list[dict[str, Any]]) -> None:
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema_id = writer.register_schema(str(schema["title"]), "jsonschema", json.dumps(schema).encode())
+        channel = writer.register_channel("/status", "json", schema_id)
+        for k, msg in enumerate(messages):
+            writer.add_message(channel, k, json.dumps(msg).encode(), k)
+        writer.finish()
+
+
+def _older_schema(schema: dict[str, Any]) -> dict[str, Any]:
+    """A schema as the older convention wrote it: no default annotations, every field without a
+    class default required."""
+    props = {k: {kk: vv for kk, vv in v.items() if kk != "default"} for k, v in schema["properties"].items()}
+    return {**schema, "properties": props}
+
+
+def test_recordings_of_the_older_convention_still_decode(tmp_path: Path) -> None:
+    """Before: NaN, Infinity, -Infinity as strings, None as null, every field written."""
+    old = dict(json.loads(encode_object(_status(1.0, speed_mps=1.0, lead=Point(0.0, 0.0)))))
+    old.update(speed_mps="NaN", gap_m=None, lead={"x_m": "Infinity", "y_m": "-Infinity"}, corner=["NaN", 2.0])
+    path = tmp_path / "old.mcap"
+    _legacy_file(path, _older_schema(json_schema(Status)), [old])
+    [entry] = read_objects(path)
+    got = entry.obj
+    assert isinstance(got, Status) and math.isnan(got.speed_mps) and got.gap_m is None  # null was None then
+    assert got.lead == Point(math.inf, -math.inf) and math.isnan(got.corner[0])
+    unregistered = tmp_path / "old_dict.mcap"
+    _legacy_file(unregistered, {**_older_schema(json_schema(Status)), "title": "elsewhere.Status"}, [old])
+    [entry] = read_objects(unregistered)
+    assert isinstance(entry.obj, dict) and math.isnan(entry.obj["speed_mps"]) and entry.obj["gap_m"] is None
+    assert entry.obj["lead"] == {"x_m": math.inf, "y_m": -math.inf}
+
+
+def test_a_field_its_writer_did_not_know_takes_the_class_default(tmp_path: Path) -> None:
+    schema = json_schema(Pose)
+    older = {**schema, "properties": {k: v for k, v in schema["properties"].items() if k != "v_mps"}}
+    path = tmp_path / "older.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        older_id = writer.register_schema("test.Pose", "jsonschema", json.dumps(older).encode())
+        today_id = writer.register_schema("test.Pose", "jsonschema", json.dumps(schema).encode())
+        for topic, schema_id in (("/older", older_id), ("/today", today_id)):
+            channel = writer.register_channel(topic, "json", schema_id)
+            writer.add_message(channel, 1, b'{"t_s":0.0,"x_m":1.0}', 1)
+        writer.finish()
+    got = {e.topic: e.obj for e in read_objects(path)}
+    assert got["/older"] == Pose(0.0, 1.0)  # v_mps did not exist yet: its default
+    assert math.isnan(got["/today"].v_mps)  # v_mps was NaN: left out
 
 
 def test_schema_is_one_type_per_field_as_foxglove_parses_it() -> None:
@@ -173,7 +267,20 @@ def test_schema_is_one_type_per_field_as_foxglove_parses_it() -> None:
     ]
     assert props["blob"] == {"type": "string", "contentEncoding": "base64"}
     assert props["lead"]["properties"]["x_m"] == {"type": "number"}
-    assert "gap_m" not in schema["required"] and "speed_mps" in schema["required"]
+    # A float field may be left out (NaN), an optional one too (None, its default): neither is required.
+    assert set(schema["required"]) == {
+        "mode",
+        "faults",
+        "counter",
+        "engaged",
+        "note",
+        "blob",
+        "path",
+        "corner",
+        "modes",
+        "samples",
+    }
+    assert props["gap_m"] == {"type": "number", "default": None} and props["lead"]["default"] is None
     assert props["corner"]["minItems"] == props["corner"]["maxItems"] == 2
 
 
@@ -201,13 +308,24 @@ def test_unsupported_fields_are_refused_naming_the_field() -> None:
         json_schema(Mixed)
     with pytest.raises(LogError, match=r"Pose\.x_m: expected a number, got str"):
         encode_object(Pose(0.0, "fast"))  # type: ignore[arg-type]
-    with pytest.raises(LogError, match=r"Status\.path\[1\]\.y_m: expected a number, got null"):
+    with pytest.raises(LogError, match=r"Status\.path\[1\]\.y_m: expected a number, got a string"):
         raw = json.loads(encode_object(_status(0.0)))
-        raw["path"][1]["y_m"] = None
+        raw["path"][1]["y_m"] = "fast"
         decode_object(Status, raw)
     with pytest.raises(LogError, match=r"fields \['extra'\] are not in Pose"):
         decode_object(Pose, {"t_s": 0.0, "x_m": 1.0, "extra": 1})
-    assert decode_object(Pose, {"t_s": 0.0, "x_m": 1.0}) == Pose(0.0, 1.0)  # defaults fill older recordings
+    with pytest.raises(LogError, match=r"field 'mode' of Status is missing"):
+        raw = json.loads(encode_object(_status(0.0)))
+        del raw["mode"]
+        decode_object(Status, raw)
+
+    @dataclass(frozen=True)
+    class Maybe:
+        t_s: float
+        gaps_m: tuple[float | None, ...]
+
+    with pytest.raises(LogError, match=r"Maybe\.gaps_m: .*may be None would be null"):
+        json_schema(Maybe)
 
 
 def test_recorder_as_store_tap_refuses_a_second_type_and_use_after_close(tmp_path: Path) -> None:
@@ -596,7 +714,7 @@ def test_live_view_publishes_the_recorder_schema_and_messages() -> None:
                     break
             sub_id, log_time_ns = struct.unpack("<IQ", payload[1:13])
             assert sub_id == 7 and log_time_ns == 2_000_000_000
-            assert payload[13:] == encode_object(Pose(2.0, math.nan))  # one encoder: NaN as "NaN"
+            assert payload[13:] == encode_object(Pose(2.0, math.nan))  # one encoder: NaN left out
         finally:
             client.close()
     view.publish("/ego/pose", Pose(3.0, 0.0))  # after close: ignored, not an error
