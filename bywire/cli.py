@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK
 """The `bywire` command: one entry point for the ECU, the host, the HIL plant/runner and the tools.
 
 Every command is a row of `COMMANDS`: the words that name it, its help line, and the module that
@@ -12,12 +13,21 @@ be joined here, at the top: `ecu` hands its raw arguments to `bywire.ecu.cli` (a
 a flashed firmware image); `host run --scenario` is the simulator's host process (`hil.host_process`)
 on the car's entry point; `log` replays a simulator's recording with the simulator's inputs. The
 `bench` rows run `benchmarks/NAME.py` of the source checkout, which an installed wheel does not hold.
+
+Exit status, for every command (README "Exit status"): 0 done (a run passed its checks), 1 a run or
+check that failed, 2 bad usage or bad input (an unknown option, a file that cannot be read, parsed or
+written), 128 + N stopped by signal N (130 Ctrl-C, 143 SIGTERM, 141 the reader of a pipe went away:
+`bywire hil list | head`). An error is one line on stderr, `error: WHERE: what`, WHERE being the file
+and line, the file and field, or the URL that failed; never a traceback for a user's mistake.
+Completion: argcomplete, on the same lazy parser (`eval "$(bywire completion bash)"`).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 import traceback
 from collections.abc import Sequence
@@ -113,6 +123,11 @@ COMMANDS: tuple[Command, ...] = (
         "the three-process HIL under a standard background load: period gaps, heartbeat gaps, spurious stops",
         "benchmarks.hil_load",
     ),
+    Command(
+        "bench cli",
+        "how long `bywire --help`, a command's help and a tab completion take in a fresh process",
+        "benchmarks.cli_startup",
+    ),
     Command("log", "recordings (MCAP): info, plot, replay", "bywire.cli", "log"),
     Command("perception", "LIDAR perception tools (seed 000 sections 4-6)", metavar="COMMAND"),
     Command(
@@ -182,6 +197,12 @@ COMMANDS: tuple[Command, ...] = (
         "bywire.protocol.protocol_cli",
         "table",
     ),
+    Command(
+        "completion",
+        'print the shell code of tab completion: eval "$(bywire completion bash)"',
+        "bywire.cli",
+        "completion",
+    ),
 )
 
 
@@ -246,18 +267,28 @@ def _row(args: argparse.Namespace) -> Command:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    raw = next((row for row in COMMANDS if row.raw and argv[:1] == [row.words]), None)
-    if raw is not None:
-        return raw.main(argv[1:])
+    if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (argcomplete's protocol)
+        _complete()
     try:
-        args = build_parser(argv).parse_args(argv)
+        raw = next((row for row in COMMANDS if row.raw and argv[:1] == [row.words]), None)
+        if raw is not None:
+            code = raw.main(argv[1:])
+        else:
+            args = build_parser(argv).parse_args(argv)
+            code = _row(args).main(args)
+        sys.stdout.flush()  # a reader gone shows here, not as a traceback in the interpreter's exit
+        return code
     except CommandUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    try:
-        return _row(args).main(args)
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:
+        return 128 + int(getattr(exc, "signum", signal.SIGINT))
+    except BrokenPipeError:
+        # The reader went away (`bywire hil list | head`): nothing more to say, and no traceback when
+        # Python flushes stdout at exit (the way the Python docs' "Note on SIGPIPE" does it).
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except RuntimeError as exc:  # a HIL process that did not start or died: its log tail says why
         print(f"error: {exc}", file=sys.stderr)
         # where it was raised: for an error that is not ours ("deque mutated during iteration") the
@@ -266,9 +297,50 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = " <- ".join(f"{f.filename.rsplit('/', 1)[-1]}:{f.lineno} {f.name}" for f in frames)
         print(f"  at {where}", file=sys.stderr)
         return 1
+    except OSError as exc:  # a file given on the command line that cannot be read or written
+        print(f"error: {_os_error_line(exc)}", file=sys.stderr)
+        return 2
     except ValueError as exc:  # scenario, calibration and URL errors say what and where
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+
+def _os_error_line(exc: OSError) -> str:
+    """`PATH: what` (`/missing_dir/x.md: No such file or directory`), as the shell says it."""
+    if exc.filename is None or exc.strerror is None:
+        return str(exc)
+    return f"{exc.filename}: {exc.strerror}"
+
+
+def _complete() -> None:
+    """Answer the shell's completion request and exit (argcomplete): the parser is built for the
+    words typed so far, so that the command being typed has its options and nothing else loads."""
+    import argcomplete
+    from argcomplete import split_line
+
+    line = os.environ.get("COMP_LINE", "")
+    words = split_line(line, int(os.environ.get("COMP_POINT", len(line))))[3]
+    start = int(os.environ["_ARGCOMPLETE"])  # the word after the program's name
+    typed = words[start:]
+    raw = next((row for row in COMMANDS if row.raw and typed[:1] == [row.words]), None)
+    if raw is not None and raw.module is not None:  # `ecu` parses its own words
+        os.environ["_ARGCOMPLETE"] = str(start + 1)
+        argcomplete.autocomplete(import_command_module(raw.module).build_parser())
+    argcomplete.autocomplete(build_parser(typed))
+    sys.exit(0)  # not reached: autocomplete exits
+
+
+def add_completion_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("shell", choices=("bash", "zsh", "fish", "tcsh", "powershell"))
+
+
+def main_completion(args: argparse.Namespace) -> int:
+    """`bywire completion SHELL`: argcomplete's registration of `bywire` for that shell (bash: put
+    `eval "$(bywire completion bash)"` in ~/.bashrc)."""
+    import argcomplete
+
+    sys.stdout.write(argcomplete.shellcode(["bywire"], shell=args.shell))
+    return 0
 
 
 # -- the rows that join what only the top may join -------------------------------------------------------

@@ -6,6 +6,8 @@ from __future__ import annotations
 import signal
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -40,6 +42,34 @@ class StopFlag:
 
     def __call__(self) -> bool:
         return self.stop
+
+
+class SignalInterrupt(KeyboardInterrupt):
+    """A signal handled like Ctrl-C (raised in the main thread, so `finally` blocks run and a run
+    writes its files); `signum` says which one asked (a shell's exit status is then 128 + signum)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextmanager
+def signals_interrupt(*signums: int) -> Iterator[None]:
+    """Within the block each of `signums` raises `SignalInterrupt` in the main thread (SIGTERM, the
+    polite stop of a supervisor or `timeout`, then ends a run as Ctrl-C does); the handlers before
+    are restored after it."""
+    before = {s: signal.getsignal(s) for s in signums}
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise SignalInterrupt(signum)
+
+    try:
+        for s in signums:
+            signal.signal(s, interrupt)
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
 
 
 def task_cpu_time_s(pid: str | int, tid: int) -> float | None:

@@ -163,7 +163,8 @@ def run_sil(
         service = ServiceTool(bus(link_ch)) if unlatches else None
         n = round(scenario.duration_s / ECU_PERIOD_S)
         wall0 = time.perf_counter()
-        report_every = max(1, n // 20)
+        # progress every 0.1 s simulated: a terminal's line and an interrupted run's JSON say how far
+        report_every = max(1, round(0.1 / ECU_PERIOD_S))
         for k in range(n + 1):
             t = k * ECU_PERIOD_S
             clock.advance_to(t)
