@@ -24,7 +24,7 @@ from bywire.clock import WallClock
 from bywire.ecu.executive import CycleStats, CyclicExecutive
 from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.scenario import load_scenario, with_perception
-from bywire.hil.sil import open_scenario_vehicle
+from bywire.hil.scenario_vehicle import open_scenario_vehicle
 from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import FdWriter
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS

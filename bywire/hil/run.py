@@ -9,11 +9,11 @@ from typing import Any
 
 from bywire.hil.evaluate import evaluate
 from bywire.hil.report import plot_run, write_json
-from bywire.hil.scenario import load_scenario
+from bywire.hil.scenario import Scenario, load_scenario
 
 
 def run_scenario(
-    name_or_file: str,
+    name_or_file: str | Scenario,
     mode: str = "sil",
     json_path: Path | None = None,
     report_dir: Path | None = None,
@@ -24,10 +24,11 @@ def run_scenario(
     leader_profile: Path | None = None,
     perception: str | None = None,
 ) -> dict[str, Any]:
-    """Run one scenario and return the result document (also written to `json_path` / `report_dir`).
+    """Run one scenario (a shipped name, a file or a loaded `Scenario`) and return the result
+    document (also written to `json_path` / `report_dir`).
     `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle;
     `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's)."""
-    scenario = load_scenario(name_or_file)
+    scenario = name_or_file if isinstance(name_or_file, Scenario) else load_scenario(name_or_file)
     if perception is not None:
         from bywire.hil.scenario import with_perception
 
@@ -38,9 +39,11 @@ def run_scenario(
 
         profile = leader_profile_from_csv(scenario, leader_profile)
     from bywire.hil.module_faults import check_module_faults
+    from bywire.hil.scenario_vehicle import check_initial_conditions
     from bywire.host.config import load_host_config
 
     check_module_faults(scenario, load_host_config(scenario.host_config))  # before any process starts
+    check_initial_conditions(scenario)
     if scenario.urban is not None:
         from bywire.hil.scenario import ScenarioError
         from bywire.hil.world.urban_spec import require_files

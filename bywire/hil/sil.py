@@ -36,6 +36,7 @@ from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.recording import Recorder
 from bywire.hil.run_calibration import load_run_calibration
 from bywire.hil.scenario import Scenario
+from bywire.hil.scenario_vehicle import open_scenario_vehicle
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil_bus import SimVirtualBus
 from bywire.hil.trace import PLANT_COLUMNS
@@ -46,7 +47,6 @@ from bywire.host.config import load_host_config
 from bywire.host.trace import HOST_COLUMNS, TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
 from bywire.protocol.vehicle_can import VehicleCodec
-from bywire.vehicle_models.fmu_vehicle import FmuVehicle, open_vehicle
 
 ECU_PERIOD_S = 0.001
 RADAR_MESSAGES = ("RADAR_Target",)
@@ -64,12 +64,6 @@ class RunResult:
     host: dict[str, np.ndarray] | None
     extra: dict[str, Any] = field(default_factory=dict)
     traffic: dict[str, np.ndarray] | None = None  # the world's per-vehicle trace (hil.world.traffic)
-
-
-def open_scenario_vehicle(scenario: Scenario) -> FmuVehicle:
-    """The scenario's plant model: a bundled model by name, or any FMU with its role mapping."""
-    start = {"v0_mps": scenario.v0_mps} if scenario.v0_mps else {}
-    return open_vehicle(scenario.model, start_values=start, mapping=scenario.plant_mapping)
 
 
 def run_sil(

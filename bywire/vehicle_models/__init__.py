@@ -5,7 +5,8 @@
   ``passat/README.md``. The car is AnnieWAY's base vehicle (seed 000 Sec. 2, seed 003 Sec. II);
   the wheelbase l = 2.72 m and the 30 deg steering limit are from seed 000 Sec. 11.1.
 - `build.ensure_fmu`: build-and-cache keyed by the SHA-256 of a model's sources.
-- `mapping.load_mapping`: plant roles -> FMU variable names (TOML), so vendor FMUs drop in.
+- `mapping.load_mapping`: plant roles (inputs, outputs, initial conditions) -> FMU variable names
+  (TOML), so vendor FMUs drop in.
 - `fmu_vehicle.FmuVehicle` / `open_vehicle`: the fast per-step adapter the plant and SIL use.
 """
 
@@ -13,6 +14,7 @@ from .build import BuildError, default_cache_dir, ensure_fmu
 from .fmu_vehicle import (
     FmuError,
     FmuVehicle,
+    InitialConditions,
     VehicleInputs,
     VehicleOutputs,
     default_mapping_path,
@@ -24,6 +26,7 @@ __all__ = [
     "BuildError",
     "FmuError",
     "FmuVehicle",
+    "InitialConditions",
     "MappingError",
     "PlantMapping",
     "VariableMap",

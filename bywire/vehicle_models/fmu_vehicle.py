@@ -51,6 +51,9 @@ from .mapping import (
 )
 
 _FMI2_WARNING = 1
+# How far the speed right after initialisation may be from the requested initial speed: float
+# round-off of a unit conversion, far below any scale error (km/h for m/s is 3.6x).
+_INITIAL_SPEED_TOLERANCE_MPS = 1e-3
 _LOG_LABELS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 _LOG_LINES_KEPT = 20
 
@@ -69,6 +72,16 @@ class VehicleInputs:
     grade_pct: float = 0.0  # road grade, + uphill
     wind_mps: float = 0.0  # wind along the car's axis, + head wind
     gear: float = 1.0  # direction of the drive force: +1 drive, -1 reverse, 0 neutral
+
+
+@dataclass(frozen=True, slots=True)
+class InitialConditions:
+    """The plant's state at t = 0 (bywire initial-condition roles, SI units); mapped by ``[initial]``."""
+
+    speed_mps: float = 0.0  # along the car's axis, + forward
+
+    def by_role(self) -> dict[str, float]:
+        return {"speed_mps": self.speed_mps}
 
 
 @dataclass(slots=True)
@@ -133,9 +146,11 @@ class FmuVehicle:
     """One instance of a vehicle FMU, stepped on its own time from t = 0.
 
     ``fmu_path`` is a ``.fmu`` file or an extracted FMU directory. Start values come from
-    ``mapping.parameters`` and then ``start_values`` (FMU variable names; parameters or inputs).
+    ``mapping.parameters``, then ``initial`` through ``mapping.initial`` (roles, SI units), then
+    ``start_values`` (FMU variable names, unconverted: for the bundled model's own tests).
     ``initial_inputs`` are applied before initialisation, so a model that settles its actuators
-    at initialisation (the bundled passat does) starts e.g. held on a grade.
+    at initialisation (the bundled passat does) starts e.g. held on a grade. With ``initial``
+    given, the speed after initialisation must be ``initial.speed_mps`` (`MappingError` if not).
     """
 
     def __init__(
@@ -145,6 +160,7 @@ class FmuVehicle:
         start_values: dict[str, float] | None = None,
         *,
         initial_inputs: VehicleInputs | None = None,
+        initial: InitialConditions | None = None,
     ) -> None:
         self._fmu_path = Path(fmu_path)
         self._mapping = mapping
@@ -155,14 +171,18 @@ class FmuVehicle:
         self._t_s = 0.0
         self._instance_name = ""
         try:
-            self._open(start_values or {}, initial_inputs or VehicleInputs())
+            self._open(start_values or {}, initial_inputs or VehicleInputs(), initial)
         except BaseException:
             self.close()
             raise
 
     # -- setup (not on the hot path) --
 
-    def _open(self, start_values: dict[str, float], initial_inputs: VehicleInputs) -> None:
+    def _open(
+        self, start_values: dict[str, float], initial_inputs: VehicleInputs, initial: InitialConditions | None
+    ) -> None:
+        # Before the FMU is opened: the one-line answer to a scenario the mapping cannot start.
+        initial_starts = self._mapping.initial_start_values(initial.by_role()) if initial is not None else {}
         if not self._fmu_path.exists():
             raise FileNotFoundError(f"{self._fmu_path}: no such FMU")
         try:
@@ -174,7 +194,7 @@ class FmuVehicle:
         self._variables = {v.name: v for v in md.modelVariables}
         in_vars = self._resolve(self._mapping.inputs, "inputs", ("input",))
         out_vars = self._resolve(self._mapping.outputs, "outputs", ("output", "local"))
-        starts = self._resolve_starts(start_values)
+        starts = self._resolve_starts(initial_starts, start_values)
 
         if self._fmu_path.is_dir():
             unzipdir = str(self._fmu_path)
@@ -212,6 +232,23 @@ class FmuVehicle:
             raise self._error("initialisation", exc) from exc
         self._check(self._get_real(self._component, self._y_vr, self._n_y, self._y), "fmi2GetReal")
         self._last = self._read_outputs(initial_inputs)
+        if initial is not None:
+            self._check_initial_speed(initial.speed_mps)
+
+    def _check_initial_speed(self, requested_mps: float) -> None:
+        started_mps = self._last.speed_mps
+        if abs(started_mps - requested_mps) <= _INITIAL_SPEED_TOLERANCE_MPS * max(1.0, abs(requested_mps)):
+            return
+        var = self._mapping.initial.get("speed_mps")
+        hint = (
+            f"check [initial].speed_mps ({var.name!r}) and its scale"
+            if var is not None
+            else "map [initial].speed_mps to the FMU's start variable"
+        )
+        raise MappingError(
+            f"{self._mapping.source}: {self._fmu_path.name} starts at speed_mps = {started_mps:g},"
+            f" not the requested {requested_mps:g}; {hint}"
+        )
 
     def _resolve(
         self, roles: dict[str, VariableMap], table: str, causalities: tuple[str, ...]
@@ -230,25 +267,28 @@ class FmuVehicle:
             resolved[role] = var
         return resolved
 
-    def _resolve_starts(self, start_values: dict[str, float]) -> list[tuple[ScalarVariable, float]]:
+    def _resolve_starts(
+        self, initial_starts: dict[str, tuple[float, str]], start_values: dict[str, float]
+    ) -> list[tuple[ScalarVariable, float]]:
         merged: dict[str, tuple[float, str]] = {
             name: (value, f"{self._mapping.source}: [parameters].{name}")
             for name, value in self._mapping.parameters.items()
         }
+        merged.update(initial_starts)
         merged.update({name: (value, f"start_values[{name!r}]") for name, value in start_values.items()})
         starts = []
         for name, (value, where) in merged.items():
             var = self._variables.get(name)
             if var is None:
                 raise MappingError(f"{where}: FMU {self._fmu_path.name} has no variable {name!r}")
-            if (
-                var.type != "Real"
-                or var.causality not in ("parameter", "input")
-                or var.variability == "constant"
-            ):
+            # FMI 2.0 sec. 4.2.4: before initialisation fmi2SetReal may set any non-constant
+            # variable with initial = exact or approx (parameters and inputs are such variables).
+            settable = var.causality in ("parameter", "input") or var.initial in ("exact", "approx")
+            if var.type != "Real" or var.variability == "constant" or not settable:
                 raise MappingError(
                     f"{where}: FMU variable {name!r} ({var.type} {var.causality} {var.variability})"
-                    " cannot take a start value; expected a Real parameter or input"
+                    " cannot take a start value; expected a Real parameter, input or a variable"
+                    ' with initial="exact" or "approx"'
                 )
             starts.append((var, float(value)))
         return starts
@@ -454,6 +494,7 @@ def open_vehicle(
     mapping: PlantMapping | str | Path | None = None,
     cache_dir: Path | None = None,
     initial_inputs: VehicleInputs | None = None,
+    initial: InitialConditions | None = None,
 ) -> FmuVehicle:
     """Open a vehicle plant.
 
@@ -471,4 +512,4 @@ def open_vehicle(
             mapping = default_mapping_path(model)
     if not isinstance(mapping, PlantMapping):
         mapping = load_mapping(mapping)
-    return FmuVehicle(fmu_path, mapping, start_values, initial_inputs=initial_inputs)
+    return FmuVehicle(fmu_path, mapping, start_values, initial_inputs=initial_inputs, initial=initial)

@@ -11,6 +11,9 @@ vendor's FMU drops in without code changes::
     [outputs]
     speed_mps = "v"
 
+    [initial]               # initial conditions -> the FMU's start variables, as [inputs]
+    speed_mps = "v_init"
+
     [parameters]            # optional start values, by FMU variable name
     mass_kg = 1650.0
 
@@ -18,7 +21,15 @@ vendor's FMU drops in without code changes::
     track_width_m = 1.55
 
 ``scale`` and ``offset`` always convert the FMU's value into the role's unit:
-``role = fmu * scale + offset`` (for inputs the adapter applies the inverse).
+``role = fmu * scale + offset`` (for inputs and initial conditions the adapter applies the inverse).
+
+Initial conditions (``[initial]``; role ``speed_mps``, a scenario's ``vehicle.v0_mps``) reach the
+FMU only through this table, as start values set before initialisation: the variable is a Real
+parameter or input, or any Real the FMU lets be set then (``initial="exact"`` or ``"approx"``,
+FMI 2.0 sec. 2.2.7 and the Co-Simulation state machine of sec. 4.2.4). An unmapped initial
+condition may only be 0, where the FMU's own start values apply; a non-zero one raises
+`MappingError` naming the role and the mapping file. After initialisation the adapter checks the
+FMU's speed output against the requested initial speed, so a wrong ``scale`` is caught at once.
 
 Unmapped optional roles fall back as follows (implemented in `fmu_vehicle.FmuVehicle`):
 
@@ -62,10 +73,11 @@ OUTPUT_ROLES_OPTIONAL = (
 )
 INPUT_ROLES = INPUT_ROLES_REQUIRED + INPUT_ROLES_OPTIONAL
 OUTPUT_ROLES = OUTPUT_ROLES_REQUIRED + OUTPUT_ROLES_OPTIONAL
+INITIAL_ROLES = ("speed_mps",)  # all optional: unmapped, only 0 is accepted
 
 DEFAULT_TRACK_WIDTH_M = 1.55  # VW Passat B6 track; only used to derive unmapped wheel speeds
 
-_TABLES = ("inputs", "outputs", "parameters", "fallback")
+_TABLES = ("inputs", "outputs", "initial", "parameters", "fallback")
 _VARIABLE_KEYS = ("name", "scale", "offset")
 _FALLBACK_KEYS = ("track_width_m",)
 
@@ -98,6 +110,27 @@ class PlantMapping:
     parameters: dict[str, float] = field(default_factory=dict)
     track_width_m: float = DEFAULT_TRACK_WIDTH_M
     source: str = "<mapping>"
+    initial: dict[str, VariableMap] = field(default_factory=dict)
+
+    def initial_start_values(self, conditions: dict[str, float]) -> dict[str, tuple[float, str]]:
+        """FMU start values for initial conditions given by role in SI units: FMU variable name ->
+        (value in the FMU's unit, where it was mapped). A non-zero condition this mapping has no
+        variable for raises `MappingError` naming the role and this mapping's file."""
+        starts: dict[str, tuple[float, str]] = {}
+        for role, value in conditions.items():
+            if role not in INITIAL_ROLES:
+                raise ValueError(
+                    f"unknown initial-condition role {role!r}; expected {', '.join(INITIAL_ROLES)}"
+                )
+            var = self.initial.get(role)
+            if var is not None:
+                starts[var.name] = (var.to_fmu(value), f"{self.source}: [initial].{role}")
+            elif value != 0.0:
+                raise MappingError(
+                    f"{self.source}: [initial].{role} is not mapped, so the FMU cannot start at"
+                    f" {role} = {value:g}; map it to the FMU's start variable or start at 0"
+                )
+        return starts
 
 
 def load_mapping(path: str | Path) -> PlantMapping:
@@ -123,6 +156,7 @@ def parse_mapping(data: dict[str, Any], source: str = "<mapping>") -> PlantMappi
 
     inputs = _parse_roles(data.get("inputs", {}), "inputs", INPUT_ROLES, INPUT_ROLES_REQUIRED, source)
     outputs = _parse_roles(data.get("outputs", {}), "outputs", OUTPUT_ROLES, OUTPUT_ROLES_REQUIRED, source)
+    initial = _parse_roles(data.get("initial", {}), "initial", INITIAL_ROLES, (), source)
     seen: dict[str, str] = {}
     for role, var in inputs.items():
         if var.name in seen:
@@ -148,7 +182,18 @@ def parse_mapping(data: dict[str, Any], source: str = "<mapping>") -> PlantMappi
     if track_width_m <= 0.0:
         raise MappingError(f"{source}: [fallback].track_width_m: must be > 0, got {track_width_m}")
 
-    return PlantMapping(inputs, outputs, parameters, track_width_m, source)
+    for role, var in initial.items():
+        if var.name in seen:
+            raise MappingError(
+                f"{source}: [initial].{role}: variable {var.name!r} is an input, driven"
+                f" by [inputs].{seen[var.name]}"
+            )
+        if var.name in parameters:
+            raise MappingError(
+                f"{source}: [initial].{role}: variable {var.name!r} also has a fixed value in [parameters]"
+            )
+
+    return PlantMapping(inputs, outputs, parameters, track_width_m, source, initial)
 
 
 def _parse_roles(
