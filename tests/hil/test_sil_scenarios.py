@@ -152,38 +152,6 @@ def test_cli_refuses_a_bad_scenario_with_the_field(tmp_path: Path) -> None:
     assert f"{path}: fualts: unknown key" in proc.stderr
 
 
-def test_a_vendor_fmu_runs_through_its_role_mapping(tmp_path: Path) -> None:
-    """Drop-in plant: a ready-made .fmu outside the repository, with a mapping file of its own.
-
-    The mapping leaves the optional roles (wheel speeds, measured brake pressure and steering angle)
-    unmapped, so the plant runs on its documented fallbacks, as it would for a vendor's model."""
-    import shutil
-
-    from bywire.vehicle_models import ensure_fmu
-
-    fmu = tmp_path / "vendor" / "car.fmu"
-    fmu.parent.mkdir()
-    shutil.copy(ensure_fmu("passat"), fmu)
-    (tmp_path / "vendor" / "car.toml").write_text(
-        "[inputs]\nthrottle_pct = 'throttle_pct'\nbrake_bar = {name = 'brake_bar', scale = 1.0}\n"
-        "steer_angle_rad = 'steer_angle_rad'\ngrade_pct = 'grade_pct'\nwind_mps = 'wind_mps'\n"
-        "[outputs]\nspeed_mps = 'speed_mps'\naccel_mps2 = 'accel_mps2'\nyaw_rate_radps = 'yaw_rate_radps'\n"
-        "x_m = 'x_m'\ny_m = 'y_m'\nheading_rad = 'heading_rad'\ndistance_m = 'distance_m'\n"
-    )
-    scenario_text = (
-        Path(builtin_scenarios()["accel_steps"])
-        .read_text()
-        .replace(
-            "vehicle: {v0_mps: 10.0}",
-            "vehicle: {v0_mps: 10.0, model: vendor/car.fmu, mapping: vendor/car.toml}",
-        )
-    )
-    path = tmp_path / "vendor_steps.yaml"
-    path.write_text(scenario_text.replace("name: accel_steps", "name: vendor_steps"))
-    result = run_scenario(str(path), mode="sil")
-    assert result["verdict"] == "pass", result["checks"]
-
-
 def test_a_ready_made_fmu_without_mapping_is_refused(tmp_path: Path) -> None:
     from bywire.hil.scenario import ScenarioError, parse_scenario
 
