@@ -123,6 +123,16 @@ def test_vendor_car_shares_no_variable_name_with_ours(fmu: Path) -> None:
     assert ours.isdisjoint(theirs)
 
 
+def test_vendor_car_c_table_matches_its_model_description(fmu: Path) -> None:
+    # Every start value read back through its value reference: the C table's order is the XML's.
+    starts = {
+        v.name: float(v.start) for v in read_model_description(str(fmu)).modelVariables if v.start is not None
+    }
+    assert len(starts) == 23
+    with FmuVehicle(fmu, load_mapping(VENDOR_MAPPING)) as car:
+        assert {name: car.read(name) for name in starts} == starts
+
+
 def test_vendor_car_speaks_its_units_through_the_mapping(fmu: Path) -> None:
     mapping = load_mapping(VENDOR_MAPPING)
     inputs = VehicleInputs(
