@@ -9,7 +9,8 @@ equations; this module writes them down:
    a_target = a_target_prev + clamp(a_req - a_target_prev, -j dt, +j dt)    (jerk limit j)
    The rate limiter is closed-form, one clamp per cycle. Not ruckig: the firmware is a pure-Python
    zipapp (no compiled wheels), and a first-order rate limit is all a 1 kHz loop on a single
-   acceleration needs; the host plans smooth trajectories with ruckig before they get here.
+   acceleration needs; the host shapes what it asks upstream (its manoeuvres drive off along ruckig's
+   jerk-limited profile, `host/navigation/trajectory.py`), and this limit holds whatever it asks.
 2. a_cmd = a_target + i. Pedal arbitration around the coasting acceleration a_coast(v) with a
    hysteresis h: throttle when a_cmd > a_coast + h, brake when a_cmd < a_coast - h, otherwise the
    current pedal. Throttle: pct = throttle_map(a_cmd, v) (bilinear, clamped 0..100). Brake:

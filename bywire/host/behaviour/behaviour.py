@@ -23,7 +23,8 @@ per state), the top-level recovery states are in recovery/, the core in hsm.py. 
    activities, which write the `Plan`.
 5. Compose the `BehaviourCommand`: the stub (30 m of route or leg from 2 m behind the rear axle), the
    desired speed (the lowest cap; on the route also the speed profile: MDF limits, curves, anticipated
-   at 1 m/s²; after an MTC go the drive-off ramp a_sat the check assumed), the nearest stop point
+   at 1 m/s²; after an MTC go the drive-off ramp a_sat the check assumed; on a manoeuvre's leg ruckig's
+   jerk-limited drive-off, `navigation.trajectory.launch_profile`), the nearest stop point
    (a state's, the final checkpoint's, and 7.5 m behind a still lead), the lead, the requests to the
    mission layer, and why.
 
@@ -48,6 +49,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from bywire.host.navigation.trajectory import launch_profile
 from bywire.host.roadnet.lane_index import LaneIndex
 from bywire.host.roadnet.route import MissionPlanner, Route
 
@@ -68,6 +70,9 @@ __all__ = ["Behaviour", "build_machine", "build_statechart"]
 
 FloatArray = npt.NDArray[np.float64]
 _PROFILE_MIN_HORIZON_M = 30.0
+# how far ahead of the speed reached a leg's drive-off asks (two behaviour periods: at standstill the
+# jerk-limited profile's own acceleration is 0, and the command takes that long to reach the wheels)
+LAUNCH_LEAD_S = 0.1
 _PROFILE_MAX_HORIZON_M = 200.0
 
 
@@ -328,6 +333,11 @@ class Behaviour:
             speed = min(speed, profile)
         if plan.drive_off_accel_mps2 is not None:
             speed = min(speed, ctx.speed_mps + plan.drive_off_accel_mps2 / p.velocity_gain_per_s)
+        elif plan.leg is not None and speed > rules.STOPPED_SPEED_MPS:
+            # a manoeuvre's leg drives off along ruckig's jerk-limited profile to the leg's speed;
+            # asked as v + a / c_v, the velocity controller's exact feed-forward of a
+            launch = launch_profile(speed).accel_at(ctx.speed_mps, LAUNCH_LEAD_S)
+            speed = min(speed, ctx.speed_mps + launch / p.velocity_gain_per_s)
         reasons = list(plan.reasons)
         if plan.hold is not None:
             speed = 0.0

@@ -6,19 +6,27 @@ each cusp for `cusp_pause_s` (the gear change).
 A stretch's speed limit is the zone's, and on a stretch that turns, what `lateral_accel_mps2` allows on
 its tightest curvature (a conservative whole-stretch limit: zone paths are short and slow). Speeds are
 signed in the result: negative while reversing. SI units throughout.
+
+`launch_profile` is the part the behaviour drives with: each leg of a manoeuvre (a zone stretch, a
+K-turn leg, an exit turn's move) starts from standstill, and the acceleration it asks for on the way
+to the leg's speed follows ruckig's jerk-limited drive-off, looked up by the speed reached rather than
+by time (the ECU may hold the car a moment at a gear change: a clock would run ahead of the car). The
+arrival at a leg's end stays with the paper's stop-point controllers (seed 000 Sec. 11.2), which at
+these speeds is the critically damped position controller: smooth already, and exact at the point.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
 
 from .smoothing import split_at_cusps
 
-__all__ = ["SpeedLimits", "ZoneTrajectory", "speed_profile"]
+__all__ = ["LaunchProfile", "SpeedLimits", "ZoneTrajectory", "launch_profile", "speed_profile"]
 
 
 @dataclass(frozen=True)
@@ -100,3 +108,52 @@ def speed_profile(
         raise ValueError("speed_profile: the path has no length")
     t, x, y, th, v, a = (np.concatenate([p[k] for p in parts]) for k in range(6))
     return ZoneTrajectory(t, x, y, th, v, a, duration_s=float(t[-1]))
+
+
+@dataclass(frozen=True)
+class LaunchProfile:
+    """A jerk-limited drive-off from standstill to `target_mps` as (time, speed, acceleration) samples
+    (speed non-decreasing), asked by speed reached: see the module docstring."""
+
+    target_mps: float
+    t_s: np.ndarray
+    speed_mps: np.ndarray
+    accel_mps2: np.ndarray
+
+    def accel_at(self, speed_mps: float, lead_s: float) -> float:
+        """The acceleration the profile asks for `lead_s` after the instant it reaches `speed_mps`
+        (>= 0; 0 at and above the target). The lead is the command's way to the wheels (a cycle of
+        the behaviour and the actuator's lag): at standstill the profile's own value is 0."""
+        if speed_mps >= self.target_mps:
+            return 0.0
+        t = float(np.interp(max(speed_mps, 0.0), self.speed_mps, self.t_s)) + lead_s
+        return float(np.interp(t, self.t_s, self.accel_mps2, right=0.0))
+
+
+@lru_cache(maxsize=256)
+def _launch(target_mps: float, accel_mps2: float, jerk_mps3: float, dt_s: float) -> LaunchProfile:
+    inp = InputParameter(1)
+    inp.control_interface = ControlInterface.Velocity
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_velocity, inp.target_acceleration = [target_mps], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [target_mps], [accel_mps2], [jerk_mps3]
+    traj = Trajectory(1)
+    result = Ruckig(1).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise ValueError(f"launch_profile: ruckig found no drive-off to {target_mps:.2f} m/s ({result})")
+    t = np.append(np.arange(0.0, traj.duration, dt_s), traj.duration)
+    v = np.empty_like(t)
+    a = np.empty_like(t)
+    for i, ti in enumerate(t):
+        _, vel, acc = traj.at_time(float(ti))
+        v[i], a[i] = vel[0], acc[0]
+    return LaunchProfile(target_mps, t, np.maximum.accumulate(v), a)
+
+
+def launch_profile(target_mps: float, limits: SpeedLimits | None = None, dt_s: float = 0.02) -> LaunchProfile:
+    """ruckig's time-optimal drive-off from rest to `target_mps` within the limits' acceleration and jerk
+    (cached: the target is rounded to 0.05 m/s, the resolution of the behaviour's speed caps)."""
+    lim = limits or SpeedLimits()
+    if not (math.isfinite(target_mps) and target_mps > 0.0):
+        raise ValueError(f"launch_profile: target_mps = {target_mps} must be finite and > 0")
+    return _launch(max(round(target_mps / 0.05) * 0.05, 0.05), lim.accel_mps2, lim.jerk_mps3, dt_s)

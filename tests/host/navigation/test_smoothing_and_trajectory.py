@@ -22,7 +22,7 @@ from bywire.host.navigation.smoothing import (
     smooth_path,
     split_at_cusps,
 )
-from bywire.host.navigation.trajectory import SpeedLimits, speed_profile
+from bywire.host.navigation.trajectory import SpeedLimits, launch_profile, speed_profile
 
 
 @pytest.fixture(scope="module")
@@ -107,3 +107,26 @@ def test_the_speed_profile_is_jerk_limited_rest_to_rest(planned) -> None:  # typ
             assert np.sum(np.isclose(tr.speed_mps, 0.0, atol=1e-9)) >= 2 * len(stretches)
     with pytest.raises(ValueError, match="jerk_mps3"):
         speed_profile(plans[0].poses, plans[0].directions, SpeedLimits(jerk_mps3=0.0))
+
+
+def test_a_legs_drive_off_follows_the_jerk_limited_profile_by_speed_reached() -> None:
+    """What the behaviour asks on a manoeuvre's leg: ruckig's drive-off, looked up by the speed reached.
+    Integrating the lookup (the car doing what is asked) reaches the target without ever exceeding the
+    acceleration or the jerk limit, starts from standstill (the lead), and asks nothing at the target."""
+    lim = SpeedLimits(accel_mps2=1.0, jerk_mps3=2.0)
+    prof = launch_profile(2.2, lim)
+    assert prof.accel_at(0.0, lead_s=0.0) == pytest.approx(0.0, abs=1e-9)  # rest: a jerk-limited start
+    assert prof.accel_at(0.0, lead_s=0.1) == pytest.approx(2.0 * 0.1, rel=0.05)
+    assert prof.accel_at(2.2, lead_s=0.1) == 0.0 and prof.accel_at(3.0, lead_s=0.1) == 0.0
+    v, a_prev, dt = 0.0, 0.0, 0.01
+    accels = []
+    for _ in range(1000):
+        a = prof.accel_at(v, lead_s=0.1)
+        accels.append(a)
+        assert abs(a - a_prev) <= lim.jerk_mps3 * (dt + 0.1) + 1e-9
+        v += a * dt
+        a_prev = a
+    assert v == pytest.approx(2.2, abs=0.05) and max(accels) <= lim.accel_mps2 + 1e-9
+    assert launch_profile(2.21, lim) is prof  # cached at the caps' resolution
+    with pytest.raises(ValueError, match="target_mps"):
+        launch_profile(0.0, lim)
