@@ -5,14 +5,30 @@ recording (`mcap_recorder`'s, or any MCAP file with JSON messages) back into the
 through `log_schema`, for `bywire log info|plot|replay`; `read_frames` gives its CAN frames back as
 python-can messages.
 
-This reader (not `mcap.reader.make_reader`, which needs the footer of a closed file) reads a file
-whose writer was killed up to its last complete record. Reading is for untrusted input: a log never
-names Python code to import; schema names are looked up in the registry filled by `register_type`,
-and unknown types come back as dicts. The recorder writes CRCs over every chunk, over the whole data
-section and over the summary, so damage is found wherever it is: damaged files (bytes flipped,
-garbage, a closed file cut inside) raise `LogError` naming the file, the byte offset and what
-failed; a damaged summary behind an intact data section only marks the file as not complete. A file
-that merely ends early (a crash: no footer) yields what it holds and reports itself as not complete.
+The records are parsed by the mcap library's `StreamReader` (the MCAP specification's sequential
+reading), which, unlike `mcap.reader.make_reader`, needs no footer: a file whose writer was killed
+is read up to its last complete record. Measured on SIL recordings of accel_steps (13 889 messages)
+and four_way_stop_1 (75 925) cut at 30, 60 and 95 % of their bytes, it recovers exactly the
+messages the hand-written parser it replaced did (at 60 %: 8 295 and 43 971), so that parser went.
+It parses about 3x slower (0.48 s against 0.16 s for the 75 925 messages on these machines), which
+`read_objects` does not feel: decoding the JSON into objects takes 1.8 s either way. What this
+module adds around it:
+
+- The file is read through `_BoundedFile`: a read that would run past the end of the file ends the
+  reading there. The stream reader alone ends a cut file with `struct.error` or `EndOfFile`
+  wherever the cut falls, and would allocate whatever a damaged length field asks for.
+- Chunks come to us whole (`emit_chunks`) and are inflated here with a bound on their announced
+  size (a damaged or hostile chunk cannot inflate without limit; the library's lz4 path has no
+  bound), then split into records by the library's `breakup_chunk`.
+- Damage is told from a crash. The recorder writes CRCs over every chunk, over the whole data
+  section and over the summary; the stream reader checks the first two, this module the summary's.
+  Damaged files (bytes flipped, garbage, a closed file cut inside) raise `LogError` naming the
+  file, the byte offset reached and what failed; a damaged summary behind an intact data section
+  only marks the file as not complete. A file that merely ends early (a crash: no footer) yields
+  what it holds and reports itself as not complete.
+
+Reading is for untrusted input: a log never names Python code to import; schema names are looked up
+in the registry filled by `register_type`, and unknown types come back as dicts.
 """
 
 from __future__ import annotations
@@ -27,46 +43,45 @@ from dataclasses import dataclass
 from typing import Any, BinaryIO
 
 import can
+from mcap.exceptions import InvalidMagic, McapError
+from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX, CanFrame
 from bywire.host.runtime.log_schema import MESSAGE_ENCODING, SCHEMA_ENCODING, LogError, decode_message
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
-_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-_OP_DATA_END = 0x0F
+_OP_FOOTER = 0x02
+_FOOTER_RECORD_BYTES = 9 + 8 + 8 + 4  # opcode, length, summary start, summary offset start, summary CRC
 
 
-class _Short(Exception):
-    """A record's content is shorter than its fields say."""
+class _Ends(Exception):
+    """The file ends before what a record says it holds."""
+
+    def __init__(self, offset: int, wanted: int) -> None:
+        super().__init__(f"{wanted} bytes wanted at byte {offset}")
+        self.offset = offset
+        self.wanted = wanted
 
 
-class _Cursor:
-    __slots__ = ("buf", "end", "pos")
+class _BoundedFile:
+    """The file as the stream reader reads it: a read past the end raises `_Ends` instead of coming
+    back short (which the reader takes as data) or allocating what a damaged length asks for."""
 
-    def __init__(self, buf: bytes, pos: int = 0, end: int | None = None) -> None:
-        self.buf = buf
-        self.pos = pos
-        self.end = len(buf) if end is None else end
+    def __init__(self, f: BinaryIO, size: int) -> None:
+        self._f = f
+        self.size = size
+        self.pos = 0
 
-    def take(self, n: int) -> bytes:
-        if n > self.end - self.pos:
-            raise _Short(f"needs {n} bytes, {self.end - self.pos} left")
-        out = self.buf[self.pos : self.pos + n]
+    def read(self, n: int = -1) -> bytes:
+        if n < 0 or n > self.size - self.pos:
+            raise _Ends(self.pos, n)
+        data = self._f.read(n)
+        if len(data) < n:  # the file shrank while being read
+            raise _Ends(self.pos + len(data), n)
         self.pos += n
-        return out
-
-    def u16(self) -> int:
-        return int(struct.unpack("<H", self.take(2))[0])
-
-    def u32(self) -> int:
-        return int(struct.unpack("<I", self.take(4))[0])
-
-    def u64(self) -> int:
-        return int(struct.unpack("<Q", self.take(8))[0])
-
-    def string(self) -> str:
-        return self.take(self.u32()).decode("utf-8")
+        return data
 
 
 @dataclass(frozen=True)
@@ -144,156 +159,129 @@ class McapLogReader:
         # A file that ends with a footer and the magic was closed: anything that looks cut short
         # inside it is damage, not a crash.
         closed = False
-        if size >= 2 * len(MCAP_MAGIC) + 9 + 20:
-            f.seek(size - len(MCAP_MAGIC) - 9 - 20)
-            end = f.read(9 + 20 + len(MCAP_MAGIC))
+        if size >= 2 * len(MCAP_MAGIC) + _FOOTER_RECORD_BYTES:
+            f.seek(size - len(MCAP_MAGIC) - _FOOTER_RECORD_BYTES)
+            end = f.read(_FOOTER_RECORD_BYTES + len(MCAP_MAGIC))
             closed = end[:9] == struct.pack("<BQ", _OP_FOOTER, 20) and end[-len(MCAP_MAGIC) :] == MCAP_MAGIC
-            f.seek(len(MCAP_MAGIC))
-        offset = len(MCAP_MAGIC)
-        # CRCs of the data section (up to the DataEnd record) and of the summary (after it), as
-        # written into DataEnd and the footer: damage outside the chunks (which have their own CRC)
-        # is found too. None for the summary until DataEnd has been read.
-        data_crc = zlib.crc32(magic)
-        summary_crc: int | None = None
-        while True:
-            head = f.read(9)
-            if len(head) < 9:
-                self.end_note = (
-                    f"ends at byte {offset} without a footer (not closed: the recorder crashed or was killed)"
-                    if not head
-                    else f"ends inside a record header at byte {offset} (not closed: crash?)"
-                )
-                return
-            opcode, length = struct.unpack("<BQ", head)
-            if closed and (opcode == 0 or length > size - offset - 9):
-                raise self._fail(
-                    offset, f"record {opcode:#04x} of {length} bytes runs past the end of this closed file"
-                )
-            if opcode == 0:
-                # Not a valid opcode: zeros where a record should start are a file system's unwritten tail.
-                self.end_note = f"zero bytes from byte {offset} on (an unfinished write)"
-                return
-            if length > size - offset - 9:
-                self.end_note = (
-                    f"the record at byte {offset} ends past the end of the file ({size} bytes): "
-                    "cut short (not closed: crash?)"
-                )
-                return
-            body = f.read(length)
-            if len(body) < length:  # the file shrank while being read
-                self.end_note = f"the record at byte {offset} was cut short while reading"
-                return
-            try:
-                if opcode == _OP_FOOTER:
-                    self._footer(f, offset, head, _Cursor(body), summary_crc)
-                    return
-                if summary_crc is not None:
-                    # The summary only repeats schemas and channels and indexes what came before.
-                    summary_crc = zlib.crc32(body, zlib.crc32(head, summary_crc))
-                elif opcode == _OP_DATA_END:
-                    expected = _Cursor(body).u32()
-                    if expected not in (0, data_crc):
-                        raise self._fail(
-                            offset,
-                            "the data section's CRC does not match: the file is damaged (the messages "
-                            "read passed their chunk's CRC, but others may be missing)",
-                        )
-                    summary_crc = 0
+        f.seek(0)
+        bounded = _BoundedFile(f, size)
+        # record_size_limit=None: _BoundedFile already refuses what the file cannot hold.
+        stream = StreamReader(
+            bounded,  # type: ignore[arg-type]  # read() is all it uses
+            validate_crcs=True,
+            emit_chunks=True,
+            record_size_limit=None,
+        )
+        footer_end: int | None = None
+        try:
+            for record in stream.records:
+                if isinstance(record, Chunk):
+                    yield from self._chunk(record, bounded.pos, topics)
+                elif isinstance(record, Footer):
+                    footer_end = bounded.pos
+                    self._summary_crc(f, record, footer_end)
                 else:
-                    data_crc = zlib.crc32(body, zlib.crc32(head, data_crc))
-                    if opcode == _OP_CHUNK:
-                        yield from self._chunk(body, offset, topics)
-                    else:
-                        msg = self._record(opcode, _Cursor(body), offset)
-                        if msg is not None and (topics is None or msg.topic in topics):
-                            yield msg
-            except _Short as exc:
-                raise self._fail(offset, f"record {opcode:#04x} is damaged: {exc}") from None
-            except UnicodeDecodeError:
-                raise self._fail(offset, f"record {opcode:#04x} is damaged: a name is not UTF-8") from None
-            offset += 9 + length
-
-    def _damaged(self, note: str) -> None:
-        """Damage after the data section (summary, footer): every message was read intact, so noted."""
-        self.damage = note if self.damage is None else f"{self.damage}; {note}"
-
-    def _footer(self, f: BinaryIO, offset: int, head: bytes, cur: _Cursor, summary_crc: int | None) -> None:
-        cur.u64(), cur.u64()  # summary start, summary offset start
-        expected = cur.u32()
-        if (
-            summary_crc is not None
-            and expected != 0
-            and zlib.crc32(cur.buf[:16], zlib.crc32(head, summary_crc)) != expected
-        ):
-            self._damaged(f"the summary's CRC does not match (footer at byte {offset})")
-        tail = f.read(len(MCAP_MAGIC))
-        if len(tail) < len(MCAP_MAGIC):
-            self.end_note = "the closing magic after the footer is cut short (crash while closing?)"
+                    msg = self._record(record, bounded.pos)
+                    if msg is not None and (topics is None or msg.topic in topics):
+                        yield msg
+        except _Ends as exc:
+            if closed:
+                raise self._fail(exc.offset, "a record runs past the end of this closed file") from None
+            if footer_end is not None:
+                self.end_note = "the closing magic after the footer is cut short (crash while closing?)"
+            elif exc.offset == bounded.size and exc.wanted == 1:  # the next record's opcode
+                self.end_note = (
+                    f"ends at byte {size} without a footer (not closed: the recorder crashed or was killed)"
+                )
+            else:
+                self.end_note = f"its last record is cut short at byte {size} (not closed: crash?)"
             return
-        if tail != MCAP_MAGIC:
-            self._damaged(f"the footer is not followed by the MCAP magic ({tail!r})")
-        if self.damage is None:
+        except InvalidMagic:
+            if footer_end is None:
+                raise self._fail(bounded.pos, "not MCAP where a record should start") from None
+            self._damaged(f"the footer is not followed by the MCAP magic (byte {footer_end})")
+        except CRCValidationError as exc:
+            if isinstance(exc.record, DataEnd):
+                raise self._fail(
+                    bounded.pos,
+                    "the data section's CRC does not match: the file is damaged (the messages "
+                    "read passed their chunk's CRC, but others may be missing)",
+                ) from None
+            raise self._fail(bounded.pos, f"damaged: {exc}") from None
+        except (McapError, struct.error, UnicodeDecodeError, ValueError) as exc:
+            raise self._fail(bounded.pos, f"a damaged record ({type(exc).__name__}: {exc})") from None
+        if footer_end is None:  # not reachable: the stream reader reads until a footer
+            self.end_note = "ended without a footer"
+        elif self.damage is None:
             self.complete = True
             self.end_note = "closed cleanly (summary and footer present)"
         else:
             self.end_note = f"closed, but damaged after the messages (all of them intact): {self.damage}"
 
-    def _record(self, opcode: int, cur: _Cursor, offset: int) -> RawMessage | None:
-        if opcode == _OP_SCHEMA:
-            schema_id = cur.u16()
-            schema = SchemaInfo(cur.string(), cur.string(), cur.take(cur.u32()))
-            if schema_id == 0:
+    def _damaged(self, note: str) -> None:
+        """Damage after the data section (summary, footer): every message was read intact, so noted."""
+        self.damage = note if self.damage is None else f"{self.damage}; {note}"
+
+    def _summary_crc(self, f: BinaryIO, footer: Footer, footer_end: int) -> None:
+        """The summary's CRC: over the summary section and the footer up to the CRC field."""
+        if footer.summary_crc == 0:
+            return
+        footer_start = footer_end - _FOOTER_RECORD_BYTES
+        start = footer.summary_start or footer_start
+        if not len(MCAP_MAGIC) <= start <= footer_start:
+            self._damaged(f"the footer's summary start {footer.summary_start} is outside the file")
+            return
+        covered = os.pread(f.fileno(), footer_end - 4 - start, start)
+        if zlib.crc32(covered) != footer.summary_crc:
+            self._damaged(f"the summary's CRC does not match (footer at byte {footer_start})")
+
+    def _record(self, record: McapRecord, offset: int) -> RawMessage | None:
+        if isinstance(record, Schema):
+            schema = SchemaInfo(record.name, record.encoding, bytes(record.data))
+            if record.id == 0:
                 raise self._fail(offset, "a schema with id 0 (reserved for 'no schema')")
-            known = self._schemas.setdefault(schema_id, schema)
+            known = self._schemas.setdefault(record.id, schema)
             if known != schema:
-                raise self._fail(offset, f"schema {schema_id} is defined twice, differently")
-        elif opcode == _OP_CHANNEL:
-            channel_id, schema_id = cur.u16(), cur.u16()
-            topic, encoding = cur.string(), cur.string()
-            meta = _Cursor(cur.buf, cur.pos, cur.end)
-            meta_length = meta.u32()
-            if meta_length > meta.end - meta.pos:
-                raise _Short("channel metadata runs past the record")
-            meta.end = meta.pos + meta_length
-            while meta.pos < meta.end:
-                meta.string(), meta.string()
-            if schema_id != 0 and schema_id not in self._schemas:
-                raise self._fail(offset, f"channel {topic!r} refers to schema {schema_id}, never defined")
-            channel = ChannelInfo(topic, encoding, self._schemas.get(schema_id))
-            known_channel = self.channels.setdefault(channel_id, channel)
+                raise self._fail(offset, f"schema {record.id} is defined twice, differently")
+        elif isinstance(record, Channel):
+            if record.schema_id != 0 and record.schema_id not in self._schemas:
+                raise self._fail(
+                    offset, f"channel {record.topic!r} refers to schema {record.schema_id}, never defined"
+                )
+            channel = ChannelInfo(record.topic, record.message_encoding, self._schemas.get(record.schema_id))
+            known_channel = self.channels.setdefault(record.id, channel)
             if known_channel != channel:
-                raise self._fail(offset, f"channel {channel_id} is defined twice, differently")
-        elif opcode == _OP_MESSAGE:
-            channel_id, sequence, log_time, publish_time = struct.unpack("<HIQQ", cur.take(22))
-            info = self.channels.get(channel_id)
+                raise self._fail(offset, f"channel {record.id} is defined twice, differently")
+        elif isinstance(record, Message):
+            info = self.channels.get(record.channel_id)
             if info is None:
-                raise self._fail(offset, f"a message on channel {channel_id}, which was never defined")
+                raise self._fail(offset, f"a message on channel {record.channel_id}, which was never defined")
             self.message_count += 1
-            return RawMessage(info, sequence, log_time, publish_time, cur.buf[cur.pos : cur.end])
+            return RawMessage(info, record.sequence, record.log_time, record.publish_time, bytes(record.data))
         # Header, indexes, statistics, metadata, attachments, data end: nothing we need.
         return None
 
-    def _chunk(self, body: bytes, offset: int, topics: frozenset[str] | None) -> Iterator[RawMessage]:
-        cur = _Cursor(body)
-        cur.u64(), cur.u64()  # message start/end time
-        uncompressed_size, crc = cur.u64(), cur.u32()
-        compression = cur.string()
-        records = cur.take(cur.u64())
-        data = self._decompress(compression, records, uncompressed_size, offset)
-        if crc != 0 and zlib.crc32(data) != crc:
-            raise self._fail(offset, "chunk CRC mismatch: the file is damaged")
-        inner = _Cursor(data)
-        while inner.pos < inner.end:
-            start = inner.pos
-            opcode, length = struct.unpack("<BQ", inner.take(9))
-            if length > inner.end - inner.pos:
-                raise self._fail(offset, f"chunk record at +{start} runs past the chunk")
-            rec = _Cursor(inner.buf, inner.pos, inner.pos + length)
-            inner.pos += length
-            if opcode in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
-                msg = self._record(opcode, rec, offset)
-                if msg is not None and (topics is None or msg.topic in topics):
-                    yield msg
+    def _chunk(self, chunk: Chunk, end: int, topics: frozenset[str] | None) -> Iterator[RawMessage]:
+        where = f"the chunk ending at byte {end}"
+        data = self._decompress(chunk.compression, chunk.data, chunk.uncompressed_size, end)
+        if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+            raise self._fail(end, f"{where}: CRC mismatch: the file is damaged")
+        plain = Chunk(
+            compression="",
+            data=data,
+            message_start_time=chunk.message_start_time,
+            message_end_time=chunk.message_end_time,
+            uncompressed_crc=0,
+            uncompressed_size=len(data),
+        )
+        try:
+            records = breakup_chunk(plain)
+        except (McapError, struct.error, UnicodeDecodeError, ValueError) as exc:
+            raise self._fail(end, f"{where}: a damaged record inside ({type(exc).__name__}: {exc})") from None
+        for record in records:
+            msg = self._record(record, end)
+            if msg is not None and (topics is None or msg.topic in topics):
+                yield msg
 
     def _decompress(self, compression: str, data: bytes, size: int, offset: int) -> bytes:
         try:

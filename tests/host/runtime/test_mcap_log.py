@@ -23,7 +23,10 @@ import can
 import jsonschema
 import numpy as np
 import pytest
+from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 from runtime_log_types import Faults, Mode, Point, Pose, Source, Status, Tick
 
@@ -450,6 +453,34 @@ def test_other_chunk_compressions_read_back(tmp_path: Path, compression: str) ->
     assert [e.obj.x_m for e in read_objects(path)] == [float(k) for k in range(100)]
     with open(path, "rb") as f:
         assert sum(1 for _ in make_reader(f, validate_crcs=True).iter_messages()) == 100
+
+
+def _library_prefix(path: Path) -> list[tuple[str, int, bytes]]:
+    """What the mcap library's StreamReader alone yields from a cut file before it stops."""
+    topics: dict[int, str] = {}
+    out = []
+    try:
+        for record in StreamReader(str(path), validate_crcs=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                out.append((topics[record.channel_id], record.log_time, bytes(record.data)))
+    except (EndOfFile, struct.error):  # how it ends a file cut inside a record
+        pass
+    return out
+
+
+def test_a_file_cut_at_60_percent_reads_as_far_as_the_mcap_stream_reader_gets(tmp_path: Path) -> None:
+    path = tmp_path / "known.mcap"
+    _known_recording(path)
+    full = [(m.topic, m.log_time_ns, m.data) for m in McapLogReader(path).messages()]
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    reader = McapLogReader(cut)
+    ours = [(m.topic, m.log_time_ns, m.data) for m in reader.messages()]
+    assert ours == _library_prefix(cut) == full[: len(ours)]
+    assert len(full) // 3 < len(ours) < len(full) and not reader.complete and "cut short" in reader.end_note
 
 
 def _readable(path: Path) -> int:
