@@ -69,14 +69,14 @@ def main_plan(args: argparse.Namespace) -> int:
     try:
         grid = load(args.map, args.resolution, (args.origin[0], args.origin[1]))
     except ValueError as exc:
-        print(f"zone plan: {exc}", file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     footprint, radius = CARS[args.car]
     t0 = time.perf_counter()
     try:
         cs = build_cspace(grid, footprint, margin_m=args.margin, n_headings=args.headings)
     except ValueError as exc:
-        print(f"zone plan: {exc}", file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     cspace_ms = 1e3 * (time.perf_counter() - t0)
     params = PlannerParams(turn_radius_m=radius, heuristic_weight=args.weight)

@@ -99,8 +99,8 @@ def main_grid(args: argparse.Namespace) -> int:
 
             plot_grid(args.png, snapshot, seg, f"{args.scan.name}: {layout.name}", scan=scan)
     except OSError as exc:
-        print(f"error: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
-        return 1
+        print(f"error: {exc.filename}: cannot write: {exc.strerror}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -149,7 +149,7 @@ def main_track_eval(args: argparse.Namespace) -> int:
     try:
         result = evaluate(args.labels_dir, args.dets_dir, calib, _sequences(args.sequences))
     except (KittiFormatError, TrackEvalError) as e:
-        print(f"bywire perception track-eval: {e}", file=sys.stderr)
+        print(f"error: {e}", file=sys.stderr)
         return 2
     print(
         f"{'sequence':>9} {'MOTA%':>6} {'MOTP%':>6} {'IDS':>5} {'FRAG':>5} {'FP':>6} {'FN':>6} {'objects':>7}"

@@ -93,7 +93,10 @@ def main(args: argparse.Namespace) -> int:
         platoon = load_platoon_csv(args.csv)
         band = (float(args.band[0]), float(args.band[1])) if args.band else None
         result = string_stability(platoon, signal=args.signal, band_hz=band)
-    except (PlatoonCsvError, ValueError, OSError) as exc:
+    except OSError as exc:
+        print(f"error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except (PlatoonCsvError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{platoon.source}: {platoon.layout}, {len(platoon.vehicles)} vehicles, {platoon.time_s[-1]:.1f} s")

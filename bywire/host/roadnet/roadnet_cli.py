@@ -211,7 +211,7 @@ def main_mission_plan(args: argparse.Namespace) -> int:
             if not network.has_waypoint(start):
                 raise MdfError("--start", 0, f"expected a waypoint of {args.rndf}, {start} is not defined")
     except RoadnetError as exc:
-        print(exc, file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     for w in (*network.warnings, *mission.warnings, *resolved.warnings):
         print(w, file=sys.stderr)

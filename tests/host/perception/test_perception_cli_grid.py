@@ -81,12 +81,12 @@ def test_a_missing_file_is_one_line_naming_it(tmp_path: Path, capsys: pytest.Cap
     assert "cannot read" in run_bad(tmp_path / "absent.bin", capsys)
 
 
-def test_an_output_that_cannot_be_written_fails_with_1(
+def test_an_output_that_cannot_be_written_is_bad_input(
     scene_bin: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "no such folder" / "grid.json"
-    assert main(["perception", "grid", str(scene_bin), "--json", str(out)]) == 1
-    assert "cannot write" in capsys.readouterr().err
+    assert main(["perception", "grid", str(scene_bin), "--json", str(out)]) == 2
+    assert capsys.readouterr().err == f"error: {out}: cannot write: No such file or directory\n"
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -124,7 +124,7 @@ def test_mission_plan_start_and_errors(tmp_path: Path, capsys: pytest.CaptureFix
     )
     capsys.readouterr()
     assert roadnet_cli.main_mission_plan(plan_args(str(rndf), str(mdf), "--start", "4.1")) == 2
-    assert capsys.readouterr().err.strip() == "--start:0: expected a waypoint id M.N.P, found '4.1'"
+    assert capsys.readouterr().err.strip() == "error: --start:0: expected a waypoint id M.N.P, found '4.1'"
     assert roadnet_cli.main_mission_plan(plan_args(str(rndf), str(mdf), "--start", "4.1.9")) == 2
     assert "4.1.9 is not defined" in capsys.readouterr().err
     # a checkpoint that cannot be reached: exit 1, reported in the table and the JSON
@@ -137,7 +137,7 @@ def test_mission_plan_start_and_errors(tmp_path: Path, capsys: pytest.CaptureFix
     wrong = tmp_path / "wrong.mdf"
     wrong.write_text(synthetic_mission_text([1, 9], {1: (0, 30)}))
     assert roadnet_cli.main_mission_plan(plan_args(str(rndf), str(wrong))) == 2
-    assert capsys.readouterr().err.startswith(f"{wrong}:6: expected a checkpoint of RNDF 'synthetic'")
+    assert capsys.readouterr().err.startswith(f"error: {wrong}:6: expected a checkpoint of RNDF 'synthetic'")
 
 
 def test_bench_rows_on_a_small_network(
