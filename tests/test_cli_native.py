@@ -73,6 +73,7 @@ def _bywire(*argv: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["protocol", "table", "--help"],
         ["rndf", "check", "--help"],
         ["perception", "grid", "--help"],
+        ["zone", "plan", "--help"],
         ["completion", "bash"],
     ],
 )

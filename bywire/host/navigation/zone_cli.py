@@ -17,20 +17,23 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+# The planner (numpy, scipy) loads when the command runs, not when `bywire` builds its parser.
+if TYPE_CHECKING:
+    from .cspace import CSpace, Footprint
+    from .hybrid_astar import Plan
 
-from .cspace import PASSAT_FOOTPRINT, CSpace, Footprint, build_cspace
-from .grid_map import load
-from .heuristics import HeuristicField
-from .hybrid_astar import Plan, PlannerParams, plan
-from .reference_maps import LEXUS_FOOTPRINT, LEXUS_TURN_RADIUS_M
+CAR_NAMES = ("lexus", "passat")  # lexus: Autoware's test car
+DEFAULT_HEURISTIC_WEIGHT = 1.5  # PlannerParams.heuristic_weight (a test holds the two equal)
 
-CARS: dict[str, tuple[Footprint, float]] = {
-    "passat": (PASSAT_FOOTPRINT, 5.5),
-    "lexus": (LEXUS_FOOTPRINT, LEXUS_TURN_RADIUS_M),  # Autoware's test car
-}
+
+def cars() -> dict[str, tuple[Footprint, float]]:
+    """Each car's footprint and turning radius (m)."""
+    from .cspace import PASSAT_FOOTPRINT
+    from .reference_maps import LEXUS_FOOTPRINT, LEXUS_TURN_RADIUS_M
+
+    return {"passat": (PASSAT_FOOTPRINT, 5.5), "lexus": (LEXUS_FOOTPRINT, LEXUS_TURN_RADIUS_M)}
 
 
 def _pose(text: str) -> tuple[float, float, float]:
@@ -54,11 +57,11 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--origin", type=_pose, default=(0.0, 0.0, 0.0), help="X,Y,0: world position of cell (0, 0)"
     )
-    p.add_argument("--car", choices=sorted(CARS), default="passat", help="footprint and turning radius")
+    p.add_argument("--car", choices=CAR_NAMES, default="passat", help="footprint and turning radius")
     p.add_argument(
         "--margin", type=float, default=0.3, help="safety distance around the car, m (default 0.3)"
     )
-    p.add_argument("--weight", type=float, default=PlannerParams.heuristic_weight,
+    p.add_argument("--weight", type=float, default=DEFAULT_HEURISTIC_WEIGHT,
                    help="heuristic weight (1: the search graph's optimum; default %(default)s)")  # fmt: skip
     p.add_argument("--headings", type=int, default=72, help="heading bins of the configuration space")
     p.add_argument("--plot", type=Path, help="write a PNG of the map, search tree, heuristic and path")
@@ -66,12 +69,18 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main_plan(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .cspace import build_cspace
+    from .grid_map import load
+    from .hybrid_astar import PlannerParams, plan
+
     try:
         grid = load(args.map, args.resolution, (args.origin[0], args.origin[1]))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    footprint, radius = CARS[args.car]
+    footprint, radius = cars()[args.car]
     t0 = time.perf_counter()
     try:
         cs = build_cspace(grid, footprint, margin_m=args.margin, n_headings=args.headings)
@@ -103,6 +112,9 @@ def plot_plan(
     turn_radius_m: float,
 ) -> None:  # fmt: skip
     import matplotlib
+    import numpy as np
+
+    from .heuristics import HeuristicField
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -148,6 +160,8 @@ def plot_plan(
 
 
 def _outline(ax: Any, fp: Footprint, pose: tuple[float, float, float], colour: str) -> None:
+    import numpy as np
+
     c, s = math.cos(pose[2]), math.sin(pose[2])
     pts = fp.corners()
     xs = pose[0] + c * pts[:, 0] - s * pts[:, 1]

@@ -46,3 +46,12 @@ def test_zone_plan_refuses_bad_input_plainly(tmp_path: Path) -> None:
         str(tmp_path / "m.npy"), "--start", "0.5,0.5,0", "--goal", "5,5,0"
     )  # the car sticks out of the map
     assert proc.returncode == 1 and "start pose" in proc.stdout
+
+
+def test_the_commands_defaults_are_the_planners() -> None:
+    """The parser holds its own copy of the planner's defaults, so that `--help` loads no planner."""
+    from bywire.host.navigation import zone_cli
+    from bywire.host.navigation.hybrid_astar import PlannerParams
+
+    assert zone_cli.DEFAULT_HEURISTIC_WEIGHT == PlannerParams.heuristic_weight
+    assert set(zone_cli.CAR_NAMES) == set(zone_cli.cars())
