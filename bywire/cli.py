@@ -128,7 +128,7 @@ COMMANDS: tuple[Command, ...] = (
         "how long `bywire --help`, a command's help and a tab completion take in a fresh process",
         "benchmarks.cli_startup",
     ),
-    Command("log", "recordings (MCAP): info, plot, replay", "bywire.cli", "log"),
+    Command("log", "recordings (MCAP): info, plot, replay, export (ASC, BLF)", "bywire.cli", "log"),
     Command("perception", "LIDAR perception tools (seed 000 sections 4-6)", metavar="COMMAND"),
     Command(
         "perception grid",

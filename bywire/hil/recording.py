@@ -1,9 +1,10 @@
 """Recording a run: every bus frame, and with MCAP also every topic of the host runtime.
 
 By the file's suffix: `.mcap` records into MCAP (`host.runtime.mcap_recorder`: Foxglove opens it, and
-`bywire log info|plot|replay` read it); any other suffix uses python-can's loggers (.log, .asc,
-.blf, .csv, .trc), frames only. One file for all buses of a run: each frame carries its bus
-("vehicle", "host_link"), in MCAP as its topic `/can/<bus>`.
+`bywire log info|plot|replay|export` read it); any other suffix uses python-can's loggers (.log,
+.asc, .blf, .csv, .trc), frames only. One file for all buses of a run: each frame carries its bus
+("vehicle", "host_link"), in MCAP as its topic `/can/<bus>`, in ASC, BLF and TRC as its own
+channel (`host.runtime.can_log`: the vehicle bus CAN 1, the host link CAN 2).
 
 In SIL the frames and the host's topics go into one recorder in one process. In HIL the host
 process records its topics itself (it must: its store is in that process) and the runner records
@@ -23,6 +24,7 @@ import can
 from mcap.writer import CompressionType, Writer
 
 from bywire.hil.sil_bus import received_copy
+from bywire.host.runtime.can_log import BusChannels
 from bywire.host.runtime.log_schema import LogError
 from bywire.host.runtime.mcap_reader import McapLogReader, RawMessage
 from bywire.host.runtime.mcap_recorder import McapRecorder
@@ -52,6 +54,7 @@ class Recorder:
         self.run_clock = run_clock or (lambda msg: float(msg.timestamp))
         self.mcap: McapRecorder | None = McapRecorder(path) if is_mcap(path) else None
         self.logger = None if self.mcap is not None else can.Logger(str(path))
+        self.channels = BusChannels(path)
         self.frames = 0
 
     def pump(self) -> int:
@@ -66,7 +69,7 @@ class Recorder:
                 else:
                     assert self.logger is not None
                     # A copy: in SIL receivers share one frame object, which must stay untouched.
-                    self.logger(received_copy(msg, msg.timestamp, name))
+                    self.logger(received_copy(msg, msg.timestamp, self.channels.channel(name)))
                 n += 1
         self.frames += n
         return n

@@ -1,8 +1,10 @@
-"""`bywire log info|plot FILE`: inspecting an MCAP recording from the command line.
+"""`bywire log info|plot|export FILE`: inspecting an MCAP recording from the command line.
 
 `info` lists the topics with their schema, message count, first/last time, mean rate and gaps, and
 says whether the file was closed cleanly or is a crash-truncated recording. `plot` draws chosen
-numeric fields over time into a PNG. Both read with `mcap_reader`'s tolerant reader, so a recording
+numeric fields over time into a PNG. `export` writes its CAN frames into a python-can log file
+(ASC, BLF, TRC, candump .log, ...) for the field's tools, each bus on its own channel
+(`runtime.can_log`). They read with `mcap_reader`'s tolerant reader, so a recording
 cut short by a crash is inspected up to its last complete chunk, and a damaged one is refused with
 a LogError naming the file and the problem.
 
@@ -54,6 +56,15 @@ def add_arguments(log_subparsers: Any) -> None:
         "/track.points.0.x_m); repeat for more plots",
     )
     plot.add_argument("--output", type=Path, metavar="PNG", help="the image to write (default: FILE.png)")
+    export = log_subparsers.add_parser(
+        "export",
+        help="the CAN frames of a recording as ASC, BLF, TRC, MF4, candump .log or CSV (by OUT's suffix); "
+        "the vehicle bus on channel 1, the host link on channel 2",
+    )
+    export.add_argument("file", type=Path, help="an MCAP recording")
+    export.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="OUT", help="the log file to write"
+    )
     rep = log_subparsers.add_parser(
         "replay", help="feed a recording back through the host's computing modules on simulated time"
     )
@@ -325,6 +336,18 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from bywire.host.runtime.can_log import export_frames
+
+    try:
+        counts = export_frames(args.file, args.output)
+    except ValueError as exc:  # python-can's answer to a suffix it has no writer for
+        raise LogError(args.output, str(exc)) from None
+    per_bus = ", ".join(f"{bus} {n}" for bus, n in counts.items()) or "none"
+    print(f"export: {sum(counts.values())} frames ({per_bus}) -> {args.output}")
+    return 0
+
+
 def _cmd_replay(args: argparse.Namespace, inputs_for: Any = None) -> int:
     from bywire.host.replay import ReplayError, car_run_inputs, replay
 
@@ -360,6 +383,7 @@ def _cmd_replay(args: argparse.Namespace, inputs_for: Any = None) -> int:
 COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "info": _cmd_info,
     "plot": _cmd_plot,
+    "export": _cmd_export,
     "replay": _cmd_replay,
 }
 
