@@ -2,11 +2,13 @@
 
 A typo in a safety-relevant file that silently does nothing is worse than no file: every reader
 refuses unknown keys, wrong types and impossible values with the file and the path of the bad field
-(`grade.yaml: faults[1].at_s: expected a number >= 0, got 'soon'`).
+(`grade.yaml: faults[1].at_s: expected a number >= 0, got 'soon'`), and where the file is YAML, its
+line too (`grade.yaml:14: faults[1].at_s: ...`, `yaml_line`), as compilers and linters name a place.
 """
 
 from __future__ import annotations
 
+import re
 from typing import Any, Self
 
 
@@ -17,6 +19,45 @@ class SchemaError(ValueError):
         super().__init__(f"{source}: {path}: {message}" if path else f"{source}: {message}")
         self.source = source
         self.path = path
+        self.message = message
+        self.line: int | None = None
+
+    def at_line(self, line: int | None) -> Self:
+        """This error told at `line` (1-based) of its file: `file:line: path: what`."""
+        if line is not None:
+            self.line = line
+            where = f"{self.source}:{line}"
+            field = f"{self.path}: " if self.path else ""
+            self.args = (f"{where}: {field}{self.message}",)
+        return self
+
+
+_PATH_PART = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
+
+
+def yaml_line(text: str, path: str) -> int | None:
+    """The line (1-based) where the field `path` (`faults[1].at_s`, as `Reader` names it) stands in
+    the YAML document `text`: its deepest part that is there; None for no part or no valid YAML.
+    Read from the node tree, so that the data the readers see stays plain dicts and lists."""
+    import yaml
+
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return None
+    line = None
+    for index, key in _PATH_PART.findall(path):
+        if key and isinstance(node, yaml.MappingNode):
+            found = next((kv for kv in node.value if getattr(kv[0], "value", None) == key), None)
+            if found is None:
+                break
+            line, node = found[0].start_mark.line + 1, found[1]
+        elif index and isinstance(node, yaml.SequenceNode) and int(index) < len(node.value):
+            node = node.value[int(index)]
+            line = node.start_mark.line + 1
+        else:
+            break
+    return line
 
 
 class Reader:

@@ -22,7 +22,7 @@ from bywire.hil.world.spec import WorldSpec, parse_world
 from bywire.hil.world.urban_spec import UrbanSpec, parse_urban
 from bywire.profiles import ramp_value, step_value
 from bywire.protocol.ecu_types import EcuState, EstopMode
-from bywire.schema import Reader, SchemaError
+from bywire.schema import Reader, SchemaError, yaml_line
 
 SCENARIO_SUFFIXES = (".yaml", ".yml", ".toml")
 
@@ -454,7 +454,12 @@ def load_scenario(name_or_file: str) -> Scenario:
         data = tomllib.loads(text) if path.suffix == ".toml" else yaml.safe_load(text)
     except (yaml.YAMLError, tomllib.TOMLDecodeError) as exc:
         raise ScenarioError(str(path), "", f"not valid {path.suffix[1:].upper()}: {exc}") from exc
-    return parse_scenario(data, str(path))
+    try:
+        return parse_scenario(data, str(path))
+    except SchemaError as exc:
+        if exc.source != str(path) or path.suffix == ".toml":  # tomllib keeps no positions
+            raise
+        raise exc.at_line(yaml_line(text, exc.path)) from None
 
 
 __all__ = [

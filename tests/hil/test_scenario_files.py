@@ -88,3 +88,50 @@ def test_a_check_may_allow_more_in_hil() -> None:
     assert (sil["passed"], sil["limit"]) == (False, 41)
     assert (hil["passed"], hil["limit"]) == (True, 120)
     assert not run_check(check, {"detect_ms": 121.0}, "hil")["passed"]
+
+
+BAD_AT_LINES = """\
+name: x
+duration_s: 5.0
+host:
+  accel_profile: [[0, 0.0], [1, 1.0]]
+faults:
+  - {kind: estop, at_s: 1.0, mode: RUN}
+  - kind: estop
+    at_s: soon
+    mode: RUN
+"""
+
+
+@pytest.mark.parametrize(
+    ("change", "where"),
+    [
+        (("", ""), "bad.yaml:8: faults[1].at_s: expected a number"),
+        (("duration_s: 5.0", "duration_s: long"), "bad.yaml:2: duration_s: expected a number"),
+        (("host:", "hots: 1\nhost:"), "bad.yaml:3: hots: unknown key"),
+        (("[1, 1.0]]", "[0, 1.0]]"), "bad.yaml:4: host.accel_profile[1]: times must increase"),
+    ],
+)
+def test_a_yaml_scenario_names_the_line_of_the_bad_field(
+    tmp_path: Path, change: tuple[str, str], where: str
+) -> None:
+    """As compilers and linters do: `file:line: field: what` (an editor jumps there)."""
+    path = tmp_path / "bad.yaml"
+    text = BAD_AT_LINES.replace(*change)
+    if change[0]:  # only the one change: the fault on line 8 repaired
+        text = text.replace("at_s: soon", "at_s: 2.0")
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(str(path))
+    assert str(err.value).startswith(f"{tmp_path}/{where}"), str(err.value)
+    assert err.value.line == int(where.split(":")[1])
+
+
+def test_yaml_line_finds_the_deepest_part_that_is_there() -> None:
+    from bywire.schema import yaml_line
+
+    assert yaml_line(BAD_AT_LINES, "faults[1].mode") == 9
+    assert yaml_line(BAD_AT_LINES, "faults[1].colour") == 7  # the item: the key is not there
+    assert yaml_line(BAD_AT_LINES, "faults[7].at_s") == 5  # no such item: the list
+    assert yaml_line(BAD_AT_LINES, "nothing") is None
+    assert yaml_line("name: [unclosed\n", "name") is None
