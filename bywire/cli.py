@@ -243,7 +243,12 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     are added (and only that command's module imported)."""
     from bywire import __version__
 
-    parser = argparse.ArgumentParser(prog="bywire", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="bywire",
+        description=__doc__.splitlines()[0],
+        epilog="exit status: 0 done, 1 a run or check that failed, 2 bad usage or input, 128+N stopped "
+        'by signal N. Tab completion: eval "$(bywire completion bash)".',
+    )
     parser.add_argument("--version", action="version", version=f"bywire {__version__}")
     groups: dict[tuple[str, ...], Any] = {
         (): parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
