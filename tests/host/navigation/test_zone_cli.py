@@ -53,5 +53,5 @@ def test_the_commands_defaults_are_the_planners() -> None:
     from bywire.host.navigation import zone_cli
     from bywire.host.navigation.hybrid_astar import PlannerParams
 
-    assert zone_cli.DEFAULT_HEURISTIC_WEIGHT == PlannerParams.heuristic_weight
+    assert PlannerParams.heuristic_weight == zone_cli.DEFAULT_HEURISTIC_WEIGHT
     assert set(zone_cli.CAR_NAMES) == set(zone_cli.cars())
