@@ -18,14 +18,16 @@ from pathlib import Path
 from typing import Any
 
 import can
+import jsonschema
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.writer import Writer
 from runtime_log_types import Faults, Mode, Point, Pose, Status
 
 from bywire.host import log_cli
-from bywire.host.runtime.log_schema import LogError, decode_object, schema_bytes
+from bywire.host.runtime.log_schema import LogError, decode_object, encode_object, schema_bytes
 from bywire.host.runtime.mcap_reader import McapLogReader, read_frames, read_objects
 from bywire.host.runtime.mcap_recorder import McapRecorder
 
@@ -226,3 +228,81 @@ def test_well_framed_files_with_hostile_json_decode_or_refuse(messages: list[Any
                 or math.isnan(entry.obj.v_mps)
                 or math.isnan(entry.obj.x_m)
             )
+
+
+SCHEMA_LIKE = st.recursive(
+    JSON_VALUES,
+    lambda children: st.dictionaries(
+        st.sampled_from(
+            ["type", "properties", "items", "default", "t_s", "x_m", "v_mps", "source", "number"]
+        ),
+        children | st.sampled_from(["number", "object", "array", "string"]),
+        max_size=5,
+    ),
+    max_leaves=16,
+)
+
+
+@FUZZ
+@given(
+    st.sampled_from(["test.Pose", "elsewhere.Thing"]),
+    SCHEMA_LIKE,
+    st.lists(_pose_like() | JSON_VALUES, min_size=1, max_size=4),
+)
+def test_hostile_file_schemas_decode_or_refuse(name: str, file_schema: Any, messages: list[Any]) -> None:
+    """The schema a file holds steers how its messages decode (the writer's convention, the fields it
+    knew): whatever it says, reading yields objects or refuses with LogError."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "hostile_schema.mcap"
+        with open(path, "wb") as f:
+            writer = Writer(f)
+            writer.start()
+            schema_id = writer.register_schema(name, "jsonschema", json.dumps(file_schema).encode())
+            channel_id = writer.register_channel("/x", "json", schema_id)
+            for k, msg in enumerate(messages):
+                writer.add_message(channel_id, k, json.dumps(msg).encode(), k)
+            writer.finish()
+        try:
+            entries = list(read_objects(path))
+        except LogError as exc:
+            assert exc.path == str(path) and "topic '/x'" in str(exc)
+            return
+        assert len(entries) == len(messages)
+        if name == "test.Pose":
+            assert all(isinstance(e.obj, Pose) for e in entries)
+
+
+FLOATS = st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([math.nan, -0.0, 5e-324])
+
+
+@FUZZ
+@given(FLOATS, FLOATS, FLOATS, st.lists(FLOATS.filter(lambda x: x == x), min_size=2, max_size=2))
+def test_any_float_round_trips_bit_exact_as_valid_json(
+    t_s: float, x_m: float, v_mps: float, corner: list[float]
+) -> None:
+    pose = Pose(t_s, x_m, v_mps)
+    status = Status(
+        t_s=t_s,
+        mode=Mode.OFF,
+        faults=Faults.NONE,
+        speed_mps=x_m,
+        gap_m=v_mps if v_mps == v_mps else None,
+        counter=0,
+        engaged=False,
+        note="",
+        blob=b"",
+        path=(Point(x_m, v_mps),),
+        corner=(corner[0], corner[1]),
+        modes=[],
+        samples=np.zeros(0),
+    )
+    for obj in (pose, status):
+        data = encode_object(obj)
+        doc = json.loads(data, parse_constant=lambda name: pytest.fail(f"{name} is not JSON"))
+        jsonschema.Draft202012Validator(json.loads(schema_bytes(type(obj)))).validate(doc)
+        got = decode_object(type(obj), data)
+        assert encode_object(got) == data
+    got_pose = decode_object(Pose, encode_object(pose))
+    for got, want in zip((got_pose.t_s, got_pose.x_m, got_pose.v_mps), (t_s, x_m, v_mps), strict=True):
+        # Bit-exact (-0.0 stays -0.0); every NaN reads back as NaN (JSON keeps no NaN payload).
+        assert math.isnan(got) if want != want else struct.pack("<d", got) == struct.pack("<d", want)
