@@ -27,7 +27,7 @@ message is valid JSON (RFC 8259) that validates against its own schema (a JSON S
   NaN is.
 - None in an `X | None` field is the field left out too; the field's schema says so with the
   annotation `"default": null` (which is also how a reader tells an optional float from a float).
-- NaN where no field can be left out (an item of `tuple[float, ...]`, or an `float | None` field,
+- NaN where no field can be left out (an item of `tuple[float, ...]`, or a `float | None` field,
   where leaving out means None) is null. JSON offers nothing else; a strict validator refuses a
   null there, so the types we record keep NaN out of float arrays and have no `float | None`
   fields (what the recorded-run tests check). Arrays of `X | None` are refused: their null would
