@@ -181,7 +181,9 @@ COMMANDS: tuple[Command, ...] = (
         "bywire.host.behaviour.diagram",
     ),
     Command(
-        "v2x", "V2X link tools: meter, echo, ping, fuzz (seed 003 section III)", "bywire.protocol.v2x.v2x_cli"
+        "v2x",
+        "V2X link tools: meter, echo, ping, fuzz, encode, decode (seed 003 section III)",
+        "bywire.protocol.v2x.v2x_cli",
     ),
     Command("bus", "virtual CAN buses"),
     Command(

@@ -49,7 +49,7 @@ print(json.dumps({
     "demo": load_scenario("demo").name,
     "configs": sorted(shipped_configs()),
     "dbc_messages": len(VehicleCodec().messages),
-    "asn": resources.files("bywire.protocol.v2x").joinpath("bywire_v2x.asn").is_file(),
+    "asn": resources.files("bywire.protocol.v2x").joinpath("asn1", "EN302637-2-v1.4.1-CAM.asn").is_file(),
 }))
 """
 

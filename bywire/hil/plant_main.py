@@ -116,11 +116,11 @@ def main(args: argparse.Namespace) -> int:
 
             objects = open_object_link(args.objects, receiver=False)
         if scenario.world is not None:
-            # The V2V senders' ASN.1 compile (~0.1-0.2 s of pyparsing) here, not in the first step:
-            # seen in HIL, it held the plant's loop for 109 ms and the ECU stopped the car.
-            from bywire.protocol.v2x.codec import compiled_spec
+            # The V2V senders' ASN.1 compiles (~0.5 s of pyparsing) here, not in the first step:
+            # seen in HIL, one held the plant's loop for 109 ms and the ECU stopped the car.
+            from bywire.protocol.v2x.schemas import compile_all
 
-            compiled_spec()
+            compile_all()
         # Collect the set-up's garbage now and keep what lives from the collector's passes: pyparsing's
         # finalizers, collected inside a step, held the loop for 85 ms in a loaded HIL run.
         if args.scans and scenario.urban is not None and scenario.urban.perception == "lidar":

@@ -1,13 +1,14 @@
 """What the simulated vehicles and the road side broadcast (seed 003 Sec. III, IV-B, IV-C, VI).
 
-`V2vBroadcaster.due(t_s)` returns the datagrams (our CAM-shaped `protocol.v2x.codec` encoding) whose
+`V2vBroadcaster.due(t_s)` returns the datagrams (ETSI CAMs, SPATEMs and MAPEMs, `protocol.v2x.wire`) whose
 delivery time has come by scenario time t_s; the plant hands them to the V2X link (UDP broadcast on
 loopback in HIL, the in-process `mem://` domain in SIL). Deterministic for a seed.
 
 Per communicating vehicle (`V2vSenderSpec`), at `rate_hz` on epochs ``k / rate + phase`` (the phase spread
 by station id, as real senders are not synchronised): its state at the epoch, stamped with the epoch's
 wall time (`unix_time`, GNSS time in the GCDC), position with white noise per axis (`position_noise_m`),
-speed with `speed_noise_mps`, delivered `latency_s` later. The bad data of seed 003 (Sec. IV-B, VI):
+speed with `speed_noise_mps`, delivered `latency_s` later; its CAM carries the low-frequency container
+at the ETSI rate (`etsi_cam.LowFrequencyClock`). The bad data of seed 003 (Sec. IV-B, VI):
 
 - frozen (a GPS outage under a bridge, seed 003 Fig. 6, Sec. VI): the broadcast position stays where it
   was when the interval began; speed, heading and acceleration go on (they come from the car's odometry
@@ -15,8 +16,9 @@ speed with `speed_noise_mps`, delivered `latency_s` later. The bad data of seed 
 - silent: nothing is sent (seed 003 VI: "did not send anything at all");
 - late: `extra_s` more latency (outdated data), the generation time still the epoch's.
 
-Road side: a traffic light's RSU sends its signal group's phase and time to change at 10 Hz, a speed-limit
-sign its zone at 2 Hz, each from the stop line's / zone start's position on the road.
+Road side: a traffic light's RSU sends its signal group's phase and time to change in a SPATEM at 10 Hz and
+its stop line in a MAPEM at 1 Hz (the first at once), a speed-limit sign its zone in a MAPEM road segment
+at 1 Hz, each from the stop line's / zone start's position on the road, facing the road's direction.
 
 A hostile sender (`FuzzSpec`): `protocol.v2x.fuzz.V2xFuzzer` floods the link with random and mutated
 datagrams at `rate_hz` during its interval, its fleet of fake vehicles placed 700 m beside the road (inside
@@ -34,12 +36,15 @@ import numpy as np
 
 from bywire.hil.world.spec import FuzzSpec, RoadsideSpec, WorldSpec
 from bywire.hil.world.traffic import TrafficVehicle, World
-from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightPhase, TrafficLightState, VehicleState, encode
+from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightPhase, VehicleState
+from bywire.protocol.v2x.dsrc import IntersectionMap, RoadMap, SignalGroupState, SignalPhases, StopLine
+from bywire.protocol.v2x.etsi_cam import LowFrequencyClock
 from bywire.protocol.v2x.fuzz import V2xFuzzer
 from bywire.protocol.v2x.receiver import GeoPoint
+from bywire.protocol.v2x.wire import encode
 
 LIGHT_RATE_HZ = 10.0
-LIMIT_RATE_HZ = 2.0
+MAP_RATE_HZ = 1.0
 FUZZ_OFFSET_M = 700.0
 
 
@@ -71,8 +76,9 @@ class V2vBroadcaster:
             if v.spec.v2v is not None:
                 period = 1.0 / v.spec.v2v.rate_hz
                 self._next[v.index] = (v.spec.v2v.station_id * 0.6180339887 % 1.0) * period
+        self._low_frequency: dict[int, LowFrequencyClock] = {}
         self._next_light = 0.0
-        self._next_limit = 0.0
+        self._next_map = 0.0
         self.sent = 0
         self.fuzzer: V2xFuzzer | None = None
         self._fuzz_next = math.inf
@@ -134,25 +140,33 @@ class V2vBroadcaster:
             width_m=v.spec.width_m,
         )
 
-    def _roadside(self, rs: RoadsideSpec, t_s: float) -> bytes:
+    def _place(self, rs: RoadsideSpec) -> tuple[float, float, float]:
+        """(lat, lon, true heading counter-clockwise from east) of a road-side object's place on the road."""
         road = self.world.road
         p = road.pose_at(0 if rs.lane is None else rs.lane, rs.s_m)
         lat, lon = road.frame.to_geodetic(p.x_m, p.y_m)
+        azimuth = road.frame.true_azimuth_from_heading(p.heading_rad, lat, lon)
+        return lat, lon, math.remainder(math.radians(90.0 - azimuth), 2.0 * math.pi)
+
+    def _spatem(self, rs: RoadsideSpec, t_s: float) -> bytes:
+        phase, ttc = _phase_at(rs, t_s)
+        group = SignalGroupState(
+            rs.intersection_id,
+            rs.signal_group,
+            TrafficLightPhase(phase),
+            None if ttc is None else min(ttc, 300.0),
+        )
+        return encode(SignalPhases(rs.station_id, self.unix_time(t_s), (group,)))
+
+    def _mapem(self, rs: RoadsideSpec, t_s: float) -> bytes:
+        lat, lon, heading = self._place(rs)
         gen = self.unix_time(t_s)
         if rs.kind == "speed_limit":
-            return encode(SpeedLimit(rs.station_id, gen, rs.station_id & 0xFFFF, lat, lon, rs.limit_mps))
-        phase, ttc = _phase_at(rs, t_s)
+            zone = SpeedLimit(rs.station_id, gen, rs.station_id & 0xFFFF, lat, lon, rs.limit_mps, heading)
+            return encode(RoadMap(rs.station_id, gen, speed_limits=(zone,)))
+        line = StopLine(rs.signal_group, lat, lon, heading)
         return encode(
-            TrafficLightState(
-                rs.station_id,
-                gen,
-                rs.intersection_id,
-                rs.signal_group,
-                lat,
-                lon,
-                TrafficLightPhase(phase),
-                None if ttc is None else min(ttc, 300.0),
-            )
+            RoadMap(rs.station_id, gen, intersections=(IntersectionMap(rs.intersection_id, (line,)),))
         )
 
     def due(self, t_s: float) -> list[bytes]:
@@ -167,19 +181,22 @@ class V2vBroadcaster:
             while nxt <= t_s:
                 if not any(iv.active(nxt) for iv in sd.silent):
                     latency = sd.latency_s + sum(extra for iv, extra in sd.late_s if iv.active(nxt))
-                    self._push(nxt + latency, encode(self._vehicle_state(v, nxt)))
+                    state = self._vehicle_state(v, nxt)
+                    lf = self._low_frequency.setdefault(v.index, LowFrequencyClock()).due(
+                        state.generation_time_s
+                    )
+                    self._push(nxt + latency, encode(state, low_frequency=lf))
                 nxt += period
             self._next[v.index] = nxt
+        while self.spec.roadside and self._next_map <= t_s:
+            for rs in self.spec.roadside:
+                self._push(self._next_map + 0.01, self._mapem(rs, self._next_map))
+            self._next_map += 1.0 / MAP_RATE_HZ
         while self.spec.roadside and self._next_light <= t_s:
             for rs in self.spec.roadside:
                 if rs.kind == "traffic_light":
-                    self._push(self._next_light + 0.01, self._roadside(rs, self._next_light))
+                    self._push(self._next_light + 0.01, self._spatem(rs, self._next_light))
             self._next_light += 1.0 / LIGHT_RATE_HZ
-        while self.spec.roadside and self._next_limit <= t_s:
-            for rs in self.spec.roadside:
-                if rs.kind == "speed_limit":
-                    self._push(self._next_limit + 0.01, self._roadside(rs, self._next_limit))
-            self._next_limit += 1.0 / LIMIT_RATE_HZ
         fz = self.spec.fuzz
         if self.fuzzer is not None and fz is not None:
             end = fz.at_s + fz.duration_s

@@ -121,9 +121,9 @@ class HostResources:
             if mod.kind in ("urban_behaviour", "lane_offset"):
                 self.urban_network()
             if mod.kind in ("v2v_rx", "v2v_tx"):
-                from bywire.protocol.v2x.codec import compiled_spec
+                from bywire.protocol.v2x.schemas import compile_all
 
-                compiled_spec()  # the ASN.1 compile (~0.2 s) here, not in the first release
+                compile_all()  # the ASN.1 compiles (~0.5 s) here, not in the first release
 
     def warm_up(self) -> None:
         """First calls that are slow once: the frame's projection builds its transformers lazily, and

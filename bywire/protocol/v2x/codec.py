@@ -1,85 +1,70 @@
-"""V2V/V2I message codec: our CAM-shaped ASN.1 messages in UPER (seed 003, Sec. III, IV-B).
+"""V2V/V2I messages in SI and the ETSI common data dictionary's units (seed 003, Sec. III, IV-B).
 
 Seed 003 Sec. IV-B: every GCDC vehicle broadcast its state vector (l, w, phi, lambda, psi, v, psi-dot, a)
-with its GPS time; the road side broadcast traffic-light states and speed limits. The 2011 message set was
-never published in machine-readable form, so our wire format (`bywire_v2x.asn`, next to this file) is an
-ETSI ITS-G5 CAM (EN 302 637-2) cut down to that state vector, with the ETSI common data dictionary's
-(TS 102 894-2) units and "unavailable" values. `etsi_cam.from_etsi_cam` reads real CAMs (protocolVersion
-1 and 2) into the same `VehicleState`, so the receiver takes both.
+with its GPS time; the road side broadcast traffic-light states and speed limits. On the air these are the
+field's standard messages (`wire`): an ETSI CAM (EN 302 637-2, `etsi_cam`) for the state vector, the
+GCDC 2016 iCLCM (`iclcm`) for what a platoon needs beyond it, SPATEM/MAPEM (ETSI TS 103 301 over ISO TS
+19091, `dsrc`) for the road side. This module holds what they share: the SI dataclasses, the ItsPduHeader
+peek, the errors, TimestampIts, and the conversions of the ETSI common data dictionary (TS 102 894-2)
+units and "unavailable" markers, done here and nowhere else.
 
-Conventions on our side (SI, converted here and nowhere else):
+Conventions on our side (SI):
 
-- `generation_time_s`: UNIX seconds (POSIX, UTC). On the wire: TimestampIts, ms since 2004-01-01 00:00:00
-  UTC counted without leap-second jumps (CDD v2.x: TAI milliseconds; 5 leap seconds ahead of UTC since
-  2017, the ETSI example 2007-01-01T00:00Z = 94 694 401 000 is a test). A future leap second needs an entry
-  in LEAP_SECONDS_UNIX_S (none announced since 2016; the CGPM decided in 2022 to stop them by 2035).
+- `generation_time_s`: UNIX seconds (POSIX, UTC). TimestampIts is ms since 2004-01-01 00:00:00 UTC counted
+  without leap-second jumps (CDD v2.x: TAI milliseconds; 5 leap seconds ahead of UTC since 2017, the ETSI
+  example 2007-01-01T00:00Z = 94 694 401 000 is a test); a CAM carries it mod 65536 (GenerationDeltaTime).
+  A future leap second needs an entry in LEAP_SECONDS_UNIX_S (none announced since 2016).
 - `heading_rad`: counter-clockwise from east (x east, y north) in the east-north tangent plane at the
-  vehicle, wrapped to (-pi, pi]: a true bearing; a map projection's grid convergence is the map's to add.
-  ETSI HeadingValue is clockwise from north in 0.1 deg: heading_rad = pi/2 - radians(0.1 n).
-- `yaw_rate_radps`: counter-clockwise positive, the same sense as ETSI YawRateValue (positive = to the
-  left, ISO 8855), so only the unit changes (0.01 deg/s).
+  vehicle, wrapped to (-pi, pi]: a true bearing. ETSI HeadingValue is clockwise from north in 0.1 deg:
+  heading_rad = pi/2 - radians(0.1 n).
+- `yaw_rate_radps`: counter-clockwise positive, the sense of ETSI YawRateValue (positive = to the left).
 - `speed_mps` is the magnitude (ETSI SpeedValue), >= 0; `drive_direction` says forward/backward.
 - `accel_mps2`: longitudinal, positive = speeding up forward. `None` wherever the wire said "unavailable".
+- Vehicle positions are the geometric centre of the vehicle (seed 003 IV-B); the CAM's reference point
+  (ground centre of the front of the bounding box) is converted at the CAM's edge (`etsi_cam`).
+- Rounding to the nearest LSB (error <= LSB/2), where ETSI specifies "<= n LSB and > (n-1) LSB"; values
+  that would land on an "outOfRange" marker or beyond are refused, not clamped.
 
-Deviations from the ETSI CAM, and why:
-
-- Absolute generation time (42-bit TimestampIts) instead of the CAM's 16-bit GenerationDeltaTime
-  (TimestampIts mod 65536): with 65.536 s wrap a receiver cannot tell a replayed or day-old message from a
-  fresh one (seed 003 III-B: "only accepted packages that were sent with a timestamp of today"). For real
-  CAMs, `etsi_cam.from_etsi_cam` resolves the wrap against a reference time (the receive time) to the
-  candidate nearest to it, so a CAM's age is only known modulo 65.536 s.
-- Position = geometric centre of the vehicle (seed 003 IV-B), not the ETSI reference point (ground
-  centre of the front of the bounding box). `from_etsi_cam` moves a CAM's reference point back by half the
-  vehicle length along the heading when both are available, else keeps it (then the position is up to
-  half a car length ahead of the centre).
-- Rounding to the nearest LSB (error <= LSB/2), where ETSI specifies "<= n LSB and > (n-1) LSB" (error
-  < 1 LSB); values that would land on an "outOfRange" marker or beyond are refused, not clamped. Received
-  outOfRange markers decode to their bound (e.g. speed 163.82 m/s), which the receiver's physical checks
-  reject.
-- No confidence values and no low-frequency / special-vehicle containers; lane position and platoon id are
-  optional extensions. Our messageIds 200..202 sit in the ItsPduHeader layout (as GCDC 2016 put iCLCM at
-  messageID 10), so bytes 0..5 tell ours and ETSI CAMs apart without an ASN.1 decoder (`peek_header`).
-- Strict decoding of our messages: the datagram must be exactly the canonical UPER encoding of what it
-  decodes to (asn1tools ignores trailing bytes; a datagram with bytes appended, non-zero padding or an
-  extension we do not know is corrupt: `PDU_BITS`). ETSI CAMs from other stacks are not held to this.
-
-Every failure to decode raises `V2xDecodeError` with a `reason` (the receiver's count key); asn1tools
-raises more than its DecodeError on garbage (ValueError, IndexError, NotImplementedError, ...): all of it
-is caught here, per datagram. Encoding a value outside its range raises `V2xEncodeError` naming the field.
+Every failure to decode raises `V2xDecodeError` with a `reason` (the receiver's count key); encoding a
+value outside its range raises `V2xEncodeError` naming the field.
 """
 
 from __future__ import annotations
 
 import bisect
-import functools
 import math
 import struct
 from dataclasses import dataclass
 from enum import StrEnum
-from pathlib import Path
 from typing import Any, Final
 
 import asn1tools
 
 # ---------------------------------------------------------------------------------------------- header
 
-PROTOCOL_VERSION: Final = 1  # bywire-v2x version in ItsPduHeader.protocolVersion for messageIds 200..202
-MSG_ETSI_CAM: Final = 2
-MSG_VEHICLE_STATE: Final = 200
-MSG_TRAFFIC_LIGHT: Final = 201
-MSG_SPEED_LIMIT: Final = 202
-OUR_MESSAGE_IDS: Final = frozenset({MSG_VEHICLE_STATE, MSG_TRAFFIC_LIGHT, MSG_SPEED_LIMIT})
-# ItsPduHeader in UPER: protocolVersion (8 bits), messageId (8 bits), stationId (32 bits), byte-aligned at
-# offset 0 because the top-level SEQUENCE has no extension marker and no OPTIONAL component.
+# ItsPduHeader.messageID (CDD TS 102 894-2 v1.3.1; iclcm(10) is the GCDC 2016's own assignment).
+MSG_DENM: Final = 1
+MSG_CAM: Final = 2
+MSG_ETSI_CAM: Final = MSG_CAM
+MSG_SPATEM: Final = 4
+MSG_MAPEM: Final = 5
+MSG_ICLCM: Final = 10
+# protocolVersion each message is sent with, and the ones we read.
+CAM_PROTOCOL_VERSION: Final = 2  # EN 302 637-2 v1.4.1
+DSRC_PROTOCOL_VERSION: Final = 2  # TS 103 301: SPATEM / MAPEM "shall be set to 2"
+ICLCM_PROTOCOL_VERSION: Final = 1  # GCDC 2016 iCLCM v1.0: currentVersion(1)
+READ_VERSIONS: Final = {
+    MSG_CAM: frozenset({1, 2}),
+    MSG_SPATEM: frozenset({1, 2}),
+    MSG_MAPEM: frozenset({1, 2}),
+    MSG_ICLCM: frozenset({1}),
+}
+MESSAGE_NAMES: Final = {MSG_CAM: "CAM", MSG_SPATEM: "SPATEM", MSG_MAPEM: "MAPEM", MSG_ICLCM: "iCLCM"}
+ROADSIDE_MESSAGE_IDS: Final = frozenset({MSG_SPATEM, MSG_MAPEM})
+# ItsPduHeader in UPER: protocolVersion (8 bits), messageID (8 bits), stationID (32 bits), byte-aligned at
+# offset 0 in every PDU we read (each is SEQUENCE { header, body } without extension marker or OPTIONAL).
 HEADER: Final = struct.Struct(">BBI")
 STATION_ID_MAX: Final = 0xFFFF_FFFF
-
-ASN1_PATH: Final = Path(__file__).with_name("bywire_v2x.asn")
-_PDU_TYPE = {
-    MSG_VEHICLE_STATE: "VehicleStateMessage",
-    MSG_TRAFFIC_LIGHT: "TrafficLightMessage",
-    MSG_SPEED_LIMIT: "SpeedLimitMessage",
-}
 
 # ---------------------------------------------------------------------------------------------- time
 
@@ -130,8 +115,8 @@ class DecodeReason(StrEnum):
 
     TOO_SHORT = "too_short"  # shorter than the 6-byte ItsPduHeader
     OVERSIZE = "oversize"  # longer than any message we accept (checked by the receiver)
-    UNKNOWN_MESSAGE = "unknown_message"  # messageId that is neither ours nor an ETSI CAM
-    BAD_VERSION = "bad_version"  # our messageId with another protocolVersion, or a CAM version we lack
+    UNKNOWN_MESSAGE = "unknown_message"  # a messageID we do not take (CAM, SPATEM, MAPEM, iCLCM)
+    BAD_VERSION = "bad_version"  # a protocolVersion we have no schema for
     MALFORMED = "malformed"  # asn1tools DecodeError / ConstraintsError (out of data, bad enum, range)
     DECODER_FAULT = "decoder_fault"  # any other exception asn1tools raised on the bytes
     NON_CANONICAL = "non_canonical"  # bytes appended, or padding / extension content we do not know
@@ -162,15 +147,18 @@ class TrafficLightPhase(StrEnum):
     AMBER = "amber"
 
 
+STATION_TYPE_PASSENGER_CAR: Final = 5  # CDD StationType passengerCar(5)
+
+
 @dataclass(frozen=True, slots=True)
 class VehicleState:
-    """One vehicle's broadcast state (seed 003 IV-B state vector plus station id and generation time).
+    """One vehicle's broadcast state (seed 003 IV-B state vector plus station id and generation time): a CAM.
 
     lat/lon: WGS84 degrees of the vehicle's geometric centre. heading_rad: counter-clockwise from east
     (true, in the tangent plane at the vehicle), (-pi, pi]. speed_mps: magnitude >= 0 (drive_direction
     gives the sense). yaw_rate_radps: counter-clockwise positive. accel_mps2: longitudinal.
-    lane_position: ETSI LanePosition (-1 off road, 0 hard shoulder, 1 outermost driving lane, ...).
-    None: the sender said "unavailable".
+    lane_position: ETSI LanePosition (-1 off road, 0 hard shoulder, 1 innermost driving lane, ...).
+    station_type: CDD StationType (5 passenger car, 8 heavy truck, ...). None: the sender said "unavailable".
     """
 
     station_id: int
@@ -185,12 +173,12 @@ class VehicleState:
     width_m: float | None
     drive_direction: DriveDirection | None = None
     lane_position: int | None = None
-    platoon_id: int | None = None
+    station_type: int = STATION_TYPE_PASSENGER_CAR
 
 
 @dataclass(frozen=True, slots=True)
 class TrafficLightState:
-    """A signal group's phase at an intersection (GCDC road side). lat/lon: its stop line.
+    """A signal group's phase at its stop line: a SPATEM's movement placed by its intersection's MAPEM.
 
     time_to_change_s: from generation_time_s to the next phase change (None: unknown).
     """
@@ -203,12 +191,12 @@ class TrafficLightState:
     lon_deg: float | None
     phase: TrafficLightPhase | None
     time_to_change_s: float | None
-    lane_position: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class SpeedLimit:
-    """A speed-limit zone (GCDC road side): where it starts, on which lane (None: all), the limit."""
+    """A speed-limit zone (a MAPEM road segment's regulatory limit): where it starts, the limit, and the
+    direction of travel it applies to (heading_rad counter-clockwise from east; None: not said)."""
 
     station_id: int
     generation_time_s: float
@@ -216,10 +204,7 @@ class SpeedLimit:
     lat_deg: float | None
     lon_deg: float | None
     limit_mps: float
-    lane_position: int | None = None
-
-
-V2xMessage = VehicleState | TrafficLightState | SpeedLimit
+    heading_rad: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,12 +215,71 @@ class Header:
 
 
 def peek_header(data: bytes) -> Header:
-    """The ItsPduHeader of a datagram (ours or an ETSI CAM) without ASN.1 decoding."""
+    """The ItsPduHeader of a datagram without ASN.1 decoding."""
     if len(data) < HEADER.size:
         raise V2xDecodeError(
             DecodeReason.TOO_SHORT, f"{len(data)} bytes, the ItsPduHeader alone needs {HEADER.size}"
         )
     return Header(*HEADER.unpack_from(data, 0))
+
+
+def header_value(message_id: int, protocol_version: int, owner: str, station_id: int) -> dict[str, int]:
+    """The CDD ItsPduHeader as asn1tools takes it."""
+    return {
+        "protocolVersion": protocol_version,
+        "messageID": message_id,
+        "stationID": checked_integer(owner, "station_id", station_id, 0, STATION_ID_MAX),
+    }
+
+
+def asn1_decode(spec: Any, type_name: str, data: bytes, what: str) -> dict[str, Any]:
+    """`spec.decode(type_name, data)`, every asn1tools failure a V2xDecodeError naming `what`."""
+    try:
+        value = spec.decode(type_name, data, check_constraints=True)
+    except (asn1tools.DecodeError, asn1tools.ConstraintsError) as e:
+        raise V2xDecodeError(DecodeReason.MALFORMED, f"{what}: {e}") from None
+    except Exception as e:  # asn1tools on garbage: ValueError, IndexError, NotImplementedError, ...
+        raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{what}: {type(e).__name__}: {e}") from None
+    if not isinstance(value, dict):
+        raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{what}: decoder returned {type(value).__name__}")
+    return value
+
+
+def asn1_encode(spec: Any, type_name: str, value: dict[str, Any], what: str) -> bytes:
+    """`spec.encode` with constraints checked; a value our builders let through is a V2xEncodeError."""
+    try:
+        return bytes(spec.encode(type_name, value, check_constraints=True))
+    except (asn1tools.EncodeError, asn1tools.ConstraintsError) as e:
+        raise V2xEncodeError(what, str(e)) from None
+
+
+def check_canonical(spec: Any, type_name: str, value: dict[str, Any], data: bytes, what: str) -> None:
+    """The datagram must be exactly the UPER encoding of what it decoded to: asn1tools ignores trailing
+    bytes, non-zero padding and extension additions it does not know, so a datagram with bytes appended,
+    flipped padding bits or unknown extensions is refused (NON_CANONICAL) rather than taken as another."""
+    try:
+        again = bytes(spec.encode(type_name, value))
+    except Exception as e:  # a decoded value that does not encode again: the decoder let garbage through
+        raise V2xDecodeError(DecodeReason.NON_CANONICAL, f"{what}: does not encode again ({e})") from None
+    if again != data:
+        raise V2xDecodeError(
+            DecodeReason.NON_CANONICAL,
+            f"{what}: {len(data)} bytes received, their canonical encoding is {len(again)} bytes"
+            + ("" if len(again) != len(data) else " with other bits (padding or extensions)"),
+        )
+
+
+def resolve_generation_delta(delta_ms: int, reference_time_s: float) -> float:
+    """CAM/iCLCM GenerationDeltaTime (TimestampIts mod 65536) -> the UNIX time nearest reference_time_s."""
+    ref = unix_to_timestamp_its(reference_time_s)
+    back = (ref - delta_ms) % GENERATION_DELTA_MODULO  # how far the latest matching ms lies behind ref
+    ts = ref - back if back <= GENERATION_DELTA_MODULO // 2 else ref - back + GENERATION_DELTA_MODULO
+    return timestamp_its_to_unix(ts)
+
+
+def generation_delta(owner: str, generation_time_s: float) -> int:
+    """UNIX seconds -> GenerationDeltaTime (TimestampIts mod 65536, EN 302 637-2 B.3)."""
+    return timestamp_its_of(owner, generation_time_s) % GENERATION_DELTA_MODULO
 
 
 # ---------------------------------------------------------------------------------------------- scaling
@@ -254,15 +298,11 @@ LENGTH_OUT_OF_RANGE: Final = 1022
 LENGTH_UNAVAILABLE: Final = 1023
 WIDTH_OUT_OF_RANGE: Final = 61
 WIDTH_UNAVAILABLE: Final = 62
-TIME_TO_CHANGE_UNAVAILABLE: Final = 36_001
 LANE_POSITION_RANGE: Final = (-1, 14)
-PLATOON_ID_RANGE: Final = (1, 255)
-SPEED_LIMIT_KMH_RANGE: Final = (1, 255)
-KMH_PER_MPS: Final = 3.6
 _HEADING_DOMAIN_RAD = 2.0 * math.pi + 1e-9  # accept both (-pi, pi] and [0, 2 pi) conventions
 
 
-def _finite(owner: str, name: str, value: float) -> float:
+def finite(owner: str, name: str, value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise V2xEncodeError(f"{owner}.{name}", f"{value!r} is not a number")
     if not math.isfinite(value):
@@ -270,13 +310,13 @@ def _finite(owner: str, name: str, value: float) -> float:
     return float(value)
 
 
-def _scaled(
+def scaled_to_etsi(
     owner: str, name: str, value: float | None, per_unit: float, lo: int, hi: int, unavailable: int, unit: str
 ) -> int:
     """value * per_unit rounded to an integer in lo..hi; None -> the unavailable marker."""
     if value is None:
         return unavailable
-    x = _finite(owner, name, value) * per_unit  # may overflow to inf: then the range test refuses it
+    x = finite(owner, name, value) * per_unit  # may overflow to inf: then the range test refuses it
     if not (lo - 1 <= x <= hi + 1 and lo <= round(x) <= hi):
         raise V2xEncodeError(
             f"{owner}.{name}",
@@ -285,7 +325,7 @@ def _scaled(
     return round(x)
 
 
-def _integer(owner: str, name: str, value: int, lo: int, hi: int) -> int:
+def checked_integer(owner: str, name: str, value: int, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise V2xEncodeError(f"{owner}.{name}", f"{value!r} is not an integer")
     if not lo <= value <= hi:
@@ -293,12 +333,12 @@ def _integer(owner: str, name: str, value: int, lo: int, hi: int) -> int:
     return value
 
 
-def _optional_integer(owner: str, name: str, value: int | None, bounds: tuple[int, int]) -> int | None:
-    return None if value is None else _integer(owner, name, value, *bounds)
+def optional_integer(owner: str, name: str, value: int | None, bounds: tuple[int, int]) -> int | None:
+    return None if value is None else checked_integer(owner, name, value, *bounds)
 
 
-def _generation_time(owner: str, value: float) -> int:
-    t = _finite(owner, "generation_time_s", value)
+def timestamp_its_of(owner: str, value: float) -> int:
+    t = finite(owner, "generation_time_s", value)
     ms = unix_to_timestamp_its(t)
     if not 0 <= ms <= TIMESTAMP_ITS_MAX:
         raise V2xEncodeError(
@@ -318,19 +358,19 @@ def heading_from_etsi(value: int) -> float:
     return math.pi if h == -math.pi else h
 
 
-def _encode_heading(owner: str, value: float | None) -> int:
+def heading_to_etsi_value(owner: str, value: float | None) -> int:
     if value is None:
         return HEADING_UNAVAILABLE
-    h = _finite(owner, "heading_rad", value)
+    h = finite(owner, "heading_rad", value)
     if abs(h) > _HEADING_DOMAIN_RAD:
         raise V2xEncodeError(f"{owner}.heading_rad", f"{value!r} rad is outside -2 pi .. 2 pi")
     return heading_to_etsi(h)
 
 
-def _position(owner: str, lat: float | None, lon: float | None) -> tuple[int, int]:
+def position_to_etsi(owner: str, lat: float | None, lon: float | None) -> tuple[int, int]:
     return (
-        _scaled(owner, "lat_deg", lat, 1e7, -900_000_000, 900_000_000, LAT_UNAVAILABLE, "deg"),
-        _scaled(owner, "lon_deg", lon, 1e7, -1_800_000_000, 1_800_000_000, LON_UNAVAILABLE, "deg"),
+        scaled_to_etsi(owner, "lat_deg", lat, 1e7, -900_000_000, 900_000_000, LAT_UNAVAILABLE, "deg"),
+        scaled_to_etsi(owner, "lon_deg", lon, 1e7, -1_800_000_000, 1_800_000_000, LON_UNAVAILABLE, "deg"),
     )
 
 
@@ -349,12 +389,12 @@ def scaled_from_etsi(n: int, unavailable: int, per_unit: float) -> float | None:
     return None if n == unavailable else n / per_unit
 
 
-def _encode_yaw_rate(owner: str, value: float | None) -> int:
+def yaw_rate_to_etsi(owner: str, value: float | None) -> int:
     """rad/s -> ETSI YawRateValue (0.01 deg/s); the range check is on the degree value."""
     if value is None:
         return YAW_RATE_UNAVAILABLE
     hi = YAW_RATE_OUT_OF_RANGE - 1
-    x = math.degrees(_finite(owner, "yaw_rate_radps", value)) * 100.0
+    x = math.degrees(finite(owner, "yaw_rate_radps", value)) * 100.0
     if not (-hi - 1 <= x <= hi + 1 and -hi <= round(x) <= hi):
         raise V2xEncodeError(
             f"{owner}.yaw_rate_radps",
@@ -367,288 +407,3 @@ def _encode_yaw_rate(owner: str, value: float | None) -> int:
 def yaw_rate_from_etsi(n: int) -> float | None:
     """ETSI YawRateValue (0.01 deg/s, counter-clockwise) -> rad/s; None for unavailable."""
     return None if n == YAW_RATE_UNAVAILABLE else math.radians(n / 100.0)
-
-
-# ---------------------------------------------------------------------------------------------- our codec
-
-
-@functools.cache
-def compiled_spec() -> Any:
-    """Our ASN.1 module compiled for UPER (once per process, ~0.1 s)."""
-    return asn1tools.compile_files(str(ASN1_PATH), "uper")
-
-
-def _header(message_id: int, owner: str, station_id: int) -> dict[str, int]:
-    return {
-        "protocolVersion": PROTOCOL_VERSION,
-        "messageId": message_id,
-        "stationId": _integer(owner, "station_id", station_id, 0, STATION_ID_MAX),
-    }
-
-
-def _vehicle_body(msg: VehicleState) -> dict[str, Any]:
-    o = "VehicleState"
-    lat, lon = _position(o, msg.lat_deg, msg.lon_deg)
-    body: dict[str, Any] = {
-        "generationTime": _generation_time(o, msg.generation_time_s),
-        "latitude": lat,
-        "longitude": lon,
-        "heading": _encode_heading(o, msg.heading_rad),
-        "speed": _scaled(
-            o, "speed_mps", msg.speed_mps, 100.0, 0, SPEED_OUT_OF_RANGE - 1, SPEED_UNAVAILABLE, "m/s"
-        ),
-        "driveDirection": "unavailable"
-        if msg.drive_direction is None
-        else DriveDirection(msg.drive_direction).value,
-        "yawRate": _encode_yaw_rate(o, msg.yaw_rate_radps),
-        "longitudinalAcceleration": _scaled(
-            o,
-            "accel_mps2",
-            msg.accel_mps2,
-            10.0,
-            -(ACCEL_OUT_OF_RANGE - 1),
-            ACCEL_OUT_OF_RANGE - 1,
-            ACCEL_UNAVAILABLE,
-            "m/s^2",
-        ),
-        "vehicleLength": _scaled(
-            o, "length_m", msg.length_m, 10.0, 1, LENGTH_OUT_OF_RANGE - 1, LENGTH_UNAVAILABLE, "m"
-        ),
-        "vehicleWidth": _scaled(
-            o, "width_m", msg.width_m, 10.0, 1, WIDTH_OUT_OF_RANGE - 1, WIDTH_UNAVAILABLE, "m"
-        ),
-    }
-    lane = _optional_integer(o, "lane_position", msg.lane_position, LANE_POSITION_RANGE)
-    if lane is not None:
-        body["lanePosition"] = lane
-    platoon = _optional_integer(o, "platoon_id", msg.platoon_id, PLATOON_ID_RANGE)
-    if platoon is not None:
-        body["platoonId"] = platoon
-    return {"header": _header(MSG_VEHICLE_STATE, o, msg.station_id), "state": body}
-
-
-def _traffic_light_body(msg: TrafficLightState) -> dict[str, Any]:
-    o = "TrafficLightState"
-    lat, lon = _position(o, msg.lat_deg, msg.lon_deg)
-    body: dict[str, Any] = {
-        "generationTime": _generation_time(o, msg.generation_time_s),
-        "intersectionId": _integer(o, "intersection_id", msg.intersection_id, 0, 65_535),
-        "signalGroup": _integer(o, "signal_group", msg.signal_group, 0, 255),
-        "latitude": lat,
-        "longitude": lon,
-        "phase": "unavailable" if msg.phase is None else TrafficLightPhase(msg.phase).value,
-        "timeToChange": _scaled(
-            o,
-            "time_to_change_s",
-            msg.time_to_change_s,
-            10.0,
-            0,
-            TIME_TO_CHANGE_UNAVAILABLE - 1,
-            TIME_TO_CHANGE_UNAVAILABLE,
-            "s",
-        ),
-    }
-    lane = _optional_integer(o, "lane_position", msg.lane_position, LANE_POSITION_RANGE)
-    if lane is not None:
-        body["lanePosition"] = lane
-    return {"header": _header(MSG_TRAFFIC_LIGHT, o, msg.station_id), "light": body}
-
-
-def _speed_limit_body(msg: SpeedLimit) -> dict[str, Any]:
-    o = "SpeedLimit"
-    lat, lon = _position(o, msg.lat_deg, msg.lon_deg)
-    kmh = _finite(o, "limit_mps", msg.limit_mps) * KMH_PER_MPS
-    lo, hi = SPEED_LIMIT_KMH_RANGE
-    if not (lo - 1 <= kmh <= hi + 1 and lo <= round(kmh) <= hi):
-        raise V2xEncodeError(
-            f"{o}.limit_mps", f"{msg.limit_mps!r} m/s ({kmh:g} km/h) is outside {lo}..{hi} km/h"
-        )
-    body: dict[str, Any] = {
-        "generationTime": _generation_time(o, msg.generation_time_s),
-        "zoneId": _integer(o, "zone_id", msg.zone_id, 0, 65_535),
-        "latitude": lat,
-        "longitude": lon,
-        "speedLimit": round(kmh),
-    }
-    lane = _optional_integer(o, "lane_position", msg.lane_position, LANE_POSITION_RANGE)
-    if lane is not None:
-        body["lanePosition"] = lane
-    return {"header": _header(MSG_SPEED_LIMIT, o, msg.station_id), "limit": body}
-
-
-def encode(msg: V2xMessage) -> bytes:
-    """A message -> its UPER datagram. V2xEncodeError names the field that is out of range."""
-    if isinstance(msg, VehicleState):
-        return bytes(
-            compiled_spec().encode("VehicleStateMessage", _vehicle_body(msg), check_constraints=True)
-        )
-    if isinstance(msg, TrafficLightState):
-        return bytes(
-            compiled_spec().encode("TrafficLightMessage", _traffic_light_body(msg), check_constraints=True)
-        )
-    if isinstance(msg, SpeedLimit):
-        return bytes(
-            compiled_spec().encode("SpeedLimitMessage", _speed_limit_body(msg), check_constraints=True)
-        )
-    raise TypeError(f"encode: {type(msg).__name__} is not a VehicleState, TrafficLightState or SpeedLimit")
-
-
-def _refuse_out_of_range_markers(s: dict[str, Any]) -> None:
-    """The ETSI out-of-range markers (speed 16382, acceleration +-160, yaw rate +-32766, length 1022,
-    width 61) say "beyond the field's range", which no VehicleState carries: such a datagram is refused
-    (our encoder never sends them, and a value taken as the marker's number would not encode again)."""
-    markers = (
-        ("speed", (SPEED_OUT_OF_RANGE,)),
-        ("longitudinalAcceleration", (ACCEL_OUT_OF_RANGE, -ACCEL_OUT_OF_RANGE)),
-        ("yawRate", (YAW_RATE_OUT_OF_RANGE, -YAW_RATE_OUT_OF_RANGE)),
-        ("vehicleLength", (LENGTH_OUT_OF_RANGE,)),
-        ("vehicleWidth", (WIDTH_OUT_OF_RANGE,)),
-    )
-    for name, values in markers:
-        if s.get(name) in values:
-            raise V2xDecodeError(
-                DecodeReason.MALFORMED, f"VehicleState.{name}: {s[name]} is the ETSI out-of-range marker"
-            )
-
-
-def _vehicle_from_dict(station_id: int, s: dict[str, Any]) -> VehicleState:
-    _refuse_out_of_range_markers(s)
-    direction = s["driveDirection"]
-    return VehicleState(
-        station_id=station_id,
-        generation_time_s=timestamp_its_to_unix(s["generationTime"]),
-        lat_deg=lat_from_etsi(s["latitude"]),
-        lon_deg=lon_from_etsi(s["longitude"]),
-        heading_rad=None if s["heading"] == HEADING_UNAVAILABLE else heading_from_etsi(s["heading"]),
-        speed_mps=scaled_from_etsi(s["speed"], SPEED_UNAVAILABLE, 100.0),
-        yaw_rate_radps=yaw_rate_from_etsi(s["yawRate"]),
-        accel_mps2=scaled_from_etsi(s["longitudinalAcceleration"], ACCEL_UNAVAILABLE, 10.0),
-        length_m=scaled_from_etsi(s["vehicleLength"], LENGTH_UNAVAILABLE, 10.0),
-        width_m=scaled_from_etsi(s["vehicleWidth"], WIDTH_UNAVAILABLE, 10.0),
-        drive_direction=None if direction == "unavailable" else DriveDirection(direction),
-        lane_position=s.get("lanePosition"),
-        platoon_id=s.get("platoonId"),
-    )
-
-
-def _phase(name: str) -> TrafficLightPhase | None:
-    if name == "unavailable":
-        return None
-    try:
-        return TrafficLightPhase(name)
-    except ValueError:  # an extension value from a newer sender: decoded by asn1tools as None/unknown
-        raise V2xDecodeError(DecodeReason.NON_CANONICAL, f"traffic-light phase {name!r} is unknown") from None
-
-
-def _traffic_light_from_dict(station_id: int, b: dict[str, Any]) -> TrafficLightState:
-    return TrafficLightState(
-        station_id=station_id,
-        generation_time_s=timestamp_its_to_unix(b["generationTime"]),
-        intersection_id=b["intersectionId"],
-        signal_group=b["signalGroup"],
-        lat_deg=lat_from_etsi(b["latitude"]),
-        lon_deg=lon_from_etsi(b["longitude"]),
-        phase=_phase(b["phase"]),
-        time_to_change_s=scaled_from_etsi(b["timeToChange"], TIME_TO_CHANGE_UNAVAILABLE, 10.0),
-        lane_position=b.get("lanePosition"),
-    )
-
-
-def _speed_limit_from_dict(station_id: int, b: dict[str, Any]) -> SpeedLimit:
-    return SpeedLimit(
-        station_id=station_id,
-        generation_time_s=timestamp_its_to_unix(b["generationTime"]),
-        zone_id=b["zoneId"],
-        lat_deg=lat_from_etsi(b["latitude"]),
-        lon_deg=lon_from_etsi(b["longitude"]),
-        limit_mps=b["speedLimit"] / KMH_PER_MPS,
-        lane_position=b.get("lanePosition"),
-    )
-
-
-def asn1_decode(spec: Any, type_name: str, data: bytes, what: str) -> dict[str, Any]:
-    """`spec.decode(type_name, data)`, every asn1tools failure a V2xDecodeError naming `what`."""
-    try:
-        value = spec.decode(type_name, data, check_constraints=True)
-    except (asn1tools.DecodeError, asn1tools.ConstraintsError) as e:
-        raise V2xDecodeError(DecodeReason.MALFORMED, f"{what}: {e}") from None
-    except Exception as e:  # asn1tools on garbage: ValueError, IndexError, NotImplementedError, ...
-        raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{what}: {type(e).__name__}: {e}") from None
-    if not isinstance(value, dict):
-        raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{what}: decoder returned {type(value).__name__}")
-    return value
-
-
-# UPER size of our PDUs in bits without their OPTIONAL components, and what each present one adds.
-# Every component is a fixed-width constrained integer or a root enumeration, so the encoding of a value
-# is unique: a datagram is canonical iff the body's extension bit is 0, its length is this size rounded
-# up to whole bytes and the padding bits are 0. That check replaces a re-encode (~40 us of ~80 us per
-# datagram); tests compare it with asn1tools for every shape, so a schema edit that breaks it fails them.
-#   header 8+8+32; VehicleStateBody ext 1, optional bitmap 2, generationTime 42, latitude 31, longitude 32,
-#   heading 12, speed 14, driveDirection 2, yawRate 16, longitudinalAcceleration 9, length 10, width 6;
-#   TrafficLightBody ext 1, bitmap 1, time 42, intersection 16, signal group 8, lat 31, lon 32, phase 1+3,
-#   timeToChange 16; SpeedLimitBody ext 1, bitmap 1, time 42, zone 16, lat 31, lon 32, limit 8.
-PDU_BITS: Final = {
-    MSG_VEHICLE_STATE: (225, (("lanePosition", 4), ("platoonId", 8))),
-    MSG_TRAFFIC_LIGHT: (199, (("lanePosition", 4),)),
-    MSG_SPEED_LIMIT: (179, (("lanePosition", 4),)),
-}
-_BODY_KEY: Final = {MSG_VEHICLE_STATE: "state", MSG_TRAFFIC_LIGHT: "light", MSG_SPEED_LIMIT: "limit"}
-_BODY_EXTENSION_BIT: Final = 0x80  # first bit after the 6-byte header
-
-
-def pdu_bits(message_id: int, body: dict[str, Any]) -> int:
-    """The UPER size in bits of one of our PDUs whose body (asn1tools value) is `body`."""
-    base, optionals = PDU_BITS[message_id]
-    return base + sum(bits for name, bits in optionals if name in body)
-
-
-def _check_canonical(message_id: int, body: dict[str, Any], data: bytes, what: str) -> None:
-    bits = pdu_bits(message_id, body)
-    size = (bits + 7) // 8
-    if len(data) != size:
-        raise V2xDecodeError(
-            DecodeReason.NON_CANONICAL, f"{what}: {len(data)} bytes received, its content is {size} bytes"
-        )
-    padding = size * 8 - bits
-    if padding and data[-1] & ((1 << padding) - 1):
-        raise V2xDecodeError(
-            DecodeReason.NON_CANONICAL, f"{what}: the {padding} padding bits of byte {size - 1} are not 0"
-        )
-
-
-def decode(data: bytes) -> V2xMessage:
-    """One of our datagrams -> VehicleState / TrafficLightState / SpeedLimit, or V2xDecodeError."""
-    data = bytes(data)
-    header = peek_header(data)
-    type_name = _PDU_TYPE.get(header.message_id)
-    if type_name is None:
-        raise V2xDecodeError(
-            DecodeReason.UNKNOWN_MESSAGE,
-            f"messageId {header.message_id} at byte 1 is not one of ours ({sorted(OUR_MESSAGE_IDS)})",
-        )
-    if header.protocol_version != PROTOCOL_VERSION:
-        raise V2xDecodeError(
-            DecodeReason.BAD_VERSION,
-            f"protocolVersion {header.protocol_version} at byte 0, ours is {PROTOCOL_VERSION}",
-        )
-    # Checked before decoding: asn1tools would parse the extension additions (and raises
-    # NotImplementedError on some random ones).
-    if len(data) > HEADER.size and data[HEADER.size] & _BODY_EXTENSION_BIT:
-        raise V2xDecodeError(
-            DecodeReason.NON_CANONICAL,
-            f"{type_name}: extension bit set at byte {HEADER.size} (v{PROTOCOL_VERSION} has none)",
-        )
-    value = asn1_decode(compiled_spec(), type_name, data, type_name)
-    _check_canonical(header.message_id, value[_BODY_KEY[header.message_id]], data, type_name)
-    station = header.station_id
-    try:
-        if header.message_id == MSG_VEHICLE_STATE:
-            return _vehicle_from_dict(station, value["state"])
-        if header.message_id == MSG_TRAFFIC_LIGHT:
-            return _traffic_light_from_dict(station, value["light"])
-        return _speed_limit_from_dict(station, value["limit"])
-    except (KeyError, TypeError, ValueError) as e:
-        if isinstance(e, V2xDecodeError):
-            raise
-        raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{type_name}: {type(e).__name__}: {e}") from None

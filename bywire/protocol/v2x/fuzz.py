@@ -7,12 +7,13 @@ stack; a crafted broadcast put unmodified GCDC clients into an infinite loop or 
 
 `V2xFuzzer.next(now_s)` returns one hostile datagram and its kind; deterministic for a seed and the
 sequence of times it is asked at. Kinds (FuzzKind): random bytes of random length; empty and oversize
-datagrams; a valid header over random bytes; bit-flipped, truncated and extended valid frames; valid frames
-with extreme values (the encodable limits), with ETSI marker values (outOfRange / unavailable, encoded
+datagrams; a valid header over random bytes; bit-flipped, truncated and extended valid frames; valid CAMs
+with extreme values (the encodable limits), with CDD marker values (outOfRange / unavailable, encoded
 raw past our dataclass checks), or with everything unavailable; replays of frames sent earlier; frames
 spoofing our own station id or fresh random ids; a fleet vehicle teleporting (position / speed jump);
-frames stamped far in the future, on another day or too old; mutated road-side messages; and floods from
-one sender (a burst of valid frames far above 50 Hz). The fleet (`fleet_size` fake vehicles around
+frames stamped in the future or too old (a CAM's GenerationDeltaTime wraps every 65.536 s: a day's offset
+lands on its residue); mutated road-side SPATEMs / MAPEMs and iCLCMs; and floods from one sender (a burst
+of valid frames far above 50 Hz). The fleet (`fleet_size` fake vehicles around
 `center`) moves consistently, so its clean frames pass decoding and reach the receiver's deeper checks.
 
 `avoid_station_ids` keeps the fuzzer off station ids it must not touch (a legitimate sender in a test);
@@ -39,8 +40,6 @@ from .codec import (
     LAT_UNAVAILABLE,
     LENGTH_OUT_OF_RANGE,
     LON_UNAVAILABLE,
-    MSG_VEHICLE_STATE,
-    PROTOCOL_VERSION,
     SPEED_OUT_OF_RANGE,
     SPEED_UNAVAILABLE,
     WIDTH_OUT_OF_RANGE,
@@ -49,14 +48,15 @@ from .codec import (
     DriveDirection,
     SpeedLimit,
     TrafficLightPhase,
-    TrafficLightState,
     VehicleState,
-    compiled_spec,
-    encode,
-    unix_to_timestamp_its,
+    generation_delta,
 )
+from .dsrc import IntersectionMap, RoadMap, SignalGroupState, SignalPhases, StopLine
+from .etsi_cam import cam_value, encode_cam_value
+from .iclcm import ControllerType, CooperativeState
 from .receiver import GeoPoint, V2vReceiver
 from .transport import V2xEndpoint, V2xTransport
+from .wire import encode
 
 _M_PER_DEG_LAT = 111_195.0  # mean-sphere metres per degree of latitude (fleet placement only)
 DEFAULT_CENTER = GeoPoint(49.0, 8.4)  # Karlsruhe, AnnieWAY's home
@@ -104,10 +104,9 @@ DEFAULT_WEIGHTS: Mapping[FuzzKind, float] = {
 FLOOD_BURST = 60  # one sender, back to back: far above the 50 Hz limit
 OVERSIZE_BYTES = 1600  # > the receiver's 1500-byte limit
 CLEAN_REUSE_S = 0.05  # a fleet vehicle's clean frame is re-encoded at 20 Hz of fuzz time, re-stamped between
-# generationTime in a VehicleStateMessage: after the 48-bit header, the body's extension bit and its
-# 2-bit optional bitmap, 42 bits (see codec.PDU_BITS).
-_GEN_TIME_BIT = 48 + 1 + 2
-_GEN_TIME_BITS = 42
+# GenerationDeltaTime of a CAM and an iCLCM: the 16 bits right after the 6-byte ItsPduHeader (their
+# bodies begin with it, with no extension marker or OPTIONAL before it).
+_GEN_DELTA_BYTES = slice(6, 8)
 
 
 def restation(frame: bytes, station_id: int) -> bytes:
@@ -116,12 +115,9 @@ def restation(frame: bytes, station_id: int) -> bytes:
 
 
 def retime(frame: bytes, t_s: float) -> bytes:
-    """A VehicleStateMessage with its generation time replaced (bit surgery: no ASN.1 round trip)."""
-    total = len(frame) * 8
-    shift = total - _GEN_TIME_BIT - _GEN_TIME_BITS
-    mask = ((1 << _GEN_TIME_BITS) - 1) << shift
-    value = int.from_bytes(frame, "big") & ~mask | (unix_to_timestamp_its(t_s) << shift)
-    return value.to_bytes(len(frame), "big")
+    """A CAM or iCLCM with its GenerationDeltaTime replaced (byte surgery: no ASN.1 round trip)."""
+    delta = generation_delta("retime", t_s).to_bytes(2, "big")
+    return frame[: _GEN_DELTA_BYTES.start] + delta + frame[_GEN_DELTA_BYTES.stop :]
 
 
 @dataclass
@@ -233,27 +229,30 @@ class V2xFuzzer:
         return frame
 
     def _raw_vehicle(self, station_id: int, now_s: float, **fields: int | str) -> bytes:
-        """A VehicleStateMessage from raw ETSI integers: past the dataclass range checks on purpose."""
+        """A CAM from raw CDD integers: past the dataclass range checks on purpose."""
         lat, lon = self._latlon(self.rng.uniform(-300, 300), self.rng.uniform(-300, 300))
-        body: dict[str, Any] = {
-            "generationTime": unix_to_timestamp_its(now_s),
-            "latitude": round(lat * 1e7),
-            "longitude": round(lon * 1e7),
-            "heading": 0,
-            "speed": 1000,
-            "driveDirection": "forward",
-            "yawRate": 0,
-            "longitudinalAcceleration": 0,
-            "vehicleLength": 45,
-            "vehicleWidth": 18,
+        state = VehicleState(station_id, now_s, lat, lon, math.pi / 2, 10.0, 0.0, 0.0, 4.5, 1.8)
+        value = cam_value(state, low_frequency=False)
+        params = value["cam"]["camParameters"]
+        ref = params["basicContainer"]["referencePosition"]
+        hf = params["highFrequencyContainer"][1]
+        setters: dict[str, Callable[[Any], None]] = {
+            "generationDeltaTime": lambda v: value["cam"].__setitem__("generationDeltaTime", v),
+            "latitude": lambda v: ref.__setitem__("latitude", v),
+            "longitude": lambda v: ref.__setitem__("longitude", v),
+            "heading": lambda v: hf["heading"].__setitem__("headingValue", v),
+            "speed": lambda v: hf["speed"].__setitem__("speedValue", v),
+            "driveDirection": lambda v: hf.__setitem__("driveDirection", v),
+            "yawRate": lambda v: hf["yawRate"].__setitem__("yawRateValue", v),
+            "longitudinalAcceleration": lambda v: hf["longitudinalAcceleration"].__setitem__(
+                "longitudinalAccelerationValue", v
+            ),
+            "vehicleLength": lambda v: hf["vehicleLength"].__setitem__("vehicleLengthValue", v),
+            "vehicleWidth": lambda v: hf.__setitem__("vehicleWidth", v),
         }
-        body.update(fields)
-        header = {
-            "protocolVersion": PROTOCOL_VERSION,
-            "messageId": MSG_VEHICLE_STATE,
-            "stationId": station_id,
-        }
-        return bytes(compiled_spec().encode("VehicleStateMessage", {"header": header, "state": body}))
+        for name, v in fields.items():
+            setters[name](v)
+        return encode_cam_value(value)
 
     # ------------------------------------------------------------------------------------------ kinds
 
@@ -303,7 +302,7 @@ class V2xFuzzer:
                     {"heading": 3600},
                     {"latitude": LAT_UNAVAILABLE},
                     {"longitude": LON_UNAVAILABLE},
-                    {"generationTime": rng.choice((0, 4_398_046_511_103))},
+                    {"generationDeltaTime": rng.choice((0, 65_535))},
                 )
             )
             return self._raw_vehicle(self._fresh_id(), now_s, **marker)
@@ -336,28 +335,50 @@ class V2xFuzzer:
             return encode(dataclasses.replace(v, speed_mps=min(69.0, v.speed_mps + 30.0)))
         if kind is FuzzKind.BAD_TIME:
             offset = rng.choice((86_400.0, -86_400.0, 3.0, -30.0, 1e5))
+            if rng.random() < 0.3:  # a SPATEM's time is absolute in the year: another day shows
+                group = SignalGroupState(rng.randrange(65536), 1, TrafficLightPhase.GREEN, 5.0)
+                return encode(SignalPhases(self._fresh_id(), now_s + offset, (group,)))
             return retime(restation(self._fleet_frame(now_s), self._fresh_id()), now_s + offset)
         if kind is FuzzKind.ROADSIDE:
             return self._roadside(now_s)
         raise AssertionError(kind)
 
     def _roadside(self, now_s: float) -> bytes:
+        """A SPATEM, MAPEM or iCLCM of random content, half of them with a flipped bit."""
         rng = self.rng
         lat, lon = self._latlon(rng.uniform(-300, 300), rng.uniform(-300, 300))
-        msg: TrafficLightState | SpeedLimit
-        if rng.random() < 0.5:
-            msg = TrafficLightState(
-                self._fresh_id(),
-                now_s,
+        heading = rng.choice((None, rng.uniform(-math.pi, math.pi)))
+        msg: SignalPhases | RoadMap | CooperativeState
+        pick = rng.random()
+        if pick < 0.4:
+            group = SignalGroupState(
                 rng.randrange(65536),
                 rng.randrange(256),
-                lat,
-                lon,
                 rng.choice([*TrafficLightPhase, None]),
-                rng.choice((None, 0.0, 12.3, 3600.0)),
+                rng.choice((None, 0.0, 12.3, 3599.0)),
             )
+            msg = SignalPhases(self._fresh_id(), now_s, (group,))
+        elif pick < 0.8:
+            station = self._fresh_id()
+            if rng.random() < 0.5:
+                line = StopLine(rng.randrange(256), lat, lon, heading)
+                msg = RoadMap(station, now_s, intersections=(IntersectionMap(rng.randrange(65536), (line,)),))
+            else:
+                zone = SpeedLimit(
+                    station, now_s, rng.randrange(65536), lat, lon, rng.uniform(0.3, 70.0), heading
+                )
+                msg = RoadMap(station, now_s, speed_limits=(zone,))
         else:
-            msg = SpeedLimit(self._fresh_id(), now_s, rng.randrange(65536), lat, lon, rng.uniform(0.3, 70.0))
+            msg = CooperativeState(
+                self._fresh_id(),
+                now_s,
+                rng.choice(list(ControllerType)),
+                rng.choice((None, rng.uniform(-10.0, 10.0))),
+                rng.choice((None, 0.6, 36.0)),
+                rng.choice((None, rng.uniform(0.0, 50.0))),
+                mio_station_id=rng.randrange(1 << 32),
+                platoon_id=rng.randrange(256),
+            )
         frame = bytearray(encode(msg))
         if rng.random() < 0.5:
             bit = rng.randrange(len(frame) * 8)

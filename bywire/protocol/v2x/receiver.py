@@ -27,14 +27,20 @@ Beyond the paper (documented deviations):
   message would contradict the frozen history. `reanchor_count` consecutive messages consistent with each
   other (and rejected only for the jump) replace the history; a history older than `track_timeout_s`
   constrains nothing.
-- Road-side messages (traffic light, speed limit) pass the same time / replay / range checks per
-  (station, intersection, signal group) or (station, zone) stream, plus their own value checks; they are
-  rate-limited per (station, messageId) at `max_roadside_rate_hz` (one RSU sends every signal group).
+- The messages are the field's (`wire`): CAM (a VehicleState), iCLCM (a CooperativeState), SPATEM
+  (SignalPhases), MAPEM (RoadMap). A CAM's and an iCLCM's generation time is known only modulo 65.536 s
+  (GenerationDeltaTime, resolved to the instant nearest the receive time), so `another_day` is never
+  their reason: a day-old CAM is judged `too_old` or `future` by its residue, and one replayed a multiple
+  of 65.536 s later passes the time checks (its history's position and speed checks remain).
+- Road-side messages pass the same time / replay checks per (station, SPATEM intersections) stream plus
+  their own value checks, and are rate-limited per (station, messageID) at `max_roadside_rate_hz`. A
+  MAPEM's time is its minute (MinuteOfTheYear): it is judged with `map_time_slack_s` more age, not
+  against replays (a map repeats unchanged within its minute), and by where its first stop line or zone
+  lies. A SPATEM has no position of its own: it is placed by its MAPEM (`roadside.RoadsideView`).
 - Per-sender state lives in an LRU table of `max_senders` entries, so a flood of random station ids costs
   bounded memory; evicting a sender only forgets its history (the next message starts a new one).
 
-Pure logic: no I/O and no clock reads except `clock()` when a caller gives no receive time (with
-accept_etsi_cam, the ETSI schema files are located at construction and compiled on the first CAM).
+Pure logic: no I/O and no clock reads except `clock()` when a caller gives no receive time.
 Not here: frozen senders (a GPS position stuck under a bridge while the speed is not zero, seed 003 VI)
 are a property of a track over time, left to the vehicle manager that filters the accepted states.
 """
@@ -47,27 +53,24 @@ from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
-from pathlib import Path
 from typing import Protocol
 
 from .codec import (
-    MSG_ETSI_CAM,
-    MSG_SPEED_LIMIT,
-    MSG_TRAFFIC_LIGHT,
-    MSG_VEHICLE_STATE,
-    OUR_MESSAGE_IDS,
-    PROTOCOL_VERSION,
+    MSG_CAM,
+    MSG_ICLCM,
+    MSG_MAPEM,
+    MSG_SPATEM,
+    READ_VERSIONS,
+    ROADSIDE_MESSAGE_IDS,
     DecodeReason,
     DriveDirection,
-    SpeedLimit,
-    TrafficLightState,
     V2xDecodeError,
-    V2xMessage,
     VehicleState,
-    decode,
     peek_header,
 )
-from .etsi_cam import etsi_asn1_dir, from_etsi_cam
+from .dsrc import RoadMap, SignalPhases
+from .iclcm import CooperativeState
+from .wire import V2xMessage, decode
 
 EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius; haversine error vs. WGS84 < 0.5 %, fine for km gates
 SECONDS_PER_DAY = 86_400
@@ -155,13 +158,12 @@ class ReceiverParams:
     quarantine_s: float = 10.0
     blacklist: frozenset[int] = frozenset()  # manual, seed 003 IV-B: e.g. the neighbouring lane's cars
     max_senders: int = 4096  # LRU bound of per-sender state (memory under random-id floods)
-    # Decoding. An 802.11p/Ethernet frame holds <= 1500 bytes; our messages are ~30 bytes, CAMs with
-    # a path history a few hundred.
+    # Decoding. An 802.11p/Ethernet frame holds <= 1500 bytes; our CAMs are ~45 bytes, CAMs with a path
+    # history and MAPEMs of a large intersection a few hundred.
     max_datagram_bytes: int = 1500
-    accept_etsi_cam: bool = False  # decode real ETSI CAMs too (needs the ETSI schemas, ~2 s to compile)
-    etsi_asn1_dir: Path | None = None
     # Road side.
     max_time_to_change_s: float = 300.0  # longest sensible signal cycle; the wire allows 3600 s
+    map_time_slack_s: float = 60.0  # a MAPEM's time is the start of its minute
     min_speed_limit_mps: float = 5.0 / 3.6
     max_speed_limit_mps: float = 160.0 / 3.6
 
@@ -184,6 +186,7 @@ class ReceiverParams:
             "strike_threshold",
             "quarantine_s",
             "max_time_to_change_s",
+            "map_time_slack_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -267,14 +270,30 @@ def _signed_speed(v: VehicleState) -> float | None:
 
 def _stream_key(msg: V2xMessage) -> tuple[int, ...]:
     if isinstance(msg, VehicleState):
-        return (MSG_VEHICLE_STATE,)
-    if isinstance(msg, TrafficLightState):
-        return (MSG_TRAFFIC_LIGHT, msg.intersection_id, msg.signal_group)
-    return (MSG_SPEED_LIMIT, msg.zone_id)
+        return (MSG_CAM,)
+    if isinstance(msg, CooperativeState):
+        return (MSG_ICLCM,)
+    if isinstance(msg, SignalPhases):
+        return (MSG_SPATEM, *sorted({g.intersection_id for g in msg.groups}))
+    return (MSG_MAPEM,)
+
+
+def _position(msg: V2xMessage) -> tuple[float | None, float | None] | None:
+    """Where a message places itself (None: it has no position of its own)."""
+    if isinstance(msg, VehicleState):
+        return msg.lat_deg, msg.lon_deg
+    if isinstance(msg, RoadMap):
+        for m in msg.intersections:
+            for s in m.stop_lines:
+                return s.lat_deg, s.lon_deg
+        for lim in msg.speed_limits:
+            return lim.lat_deg, lim.lon_deg
+        return None, None
+    return None
 
 
 class V2vReceiver:
-    """Datagrams -> plausible VehicleState / TrafficLightState / SpeedLimit, every rejection counted."""
+    """Datagrams -> plausible VehicleState / CooperativeState / SignalPhases / RoadMap, rejections counted."""
 
     def __init__(
         self,
@@ -286,10 +305,6 @@ class V2vReceiver:
         self.params = params or ReceiverParams()
         self.own_station_id = own_station_id
         self._clock = clock
-        # Looked up now (and failing now, saying where it looked), not per CAM.
-        self._etsi_dir: Path | None = None
-        if self.params.accept_etsi_cam:
-            self._etsi_dir = self.params.etsi_asn1_dir or etsi_asn1_dir()
         self._blacklist: dict[int, float] = dict.fromkeys(self.params.blacklist, math.inf)
         self._senders: OrderedDict[int, _Sender] = OrderedDict()
         self.received = 0
@@ -356,10 +371,10 @@ class V2vReceiver:
             header = peek_header(data)
         except V2xDecodeError as e:
             return Verdict(None, e.reason, e.detail)
-        ours = header.message_id in OUR_MESSAGE_IDS
-        if not ours and not (p.accept_etsi_cam and header.message_id == MSG_ETSI_CAM):
-            return Verdict(None, DecodeReason.UNKNOWN_MESSAGE, f"messageId {header.message_id}")
-        if ours and header.protocol_version != PROTOCOL_VERSION:
+        versions = READ_VERSIONS.get(header.message_id)
+        if versions is None:
+            return Verdict(None, DecodeReason.UNKNOWN_MESSAGE, f"messageID {header.message_id}")
+        if header.protocol_version not in versions:
             return Verdict(None, DecodeReason.BAD_VERSION, f"protocolVersion {header.protocol_version}")
         station = header.station_id
         if station == self.own_station_id:
@@ -377,7 +392,7 @@ class V2vReceiver:
         if not self._take_token(sender, header.message_id, t):
             return self._strike(sender, t, Reason.RATE_LIMITED, f"station {station} above its rate")
         try:
-            msg = decode(data) if ours else from_etsi_cam(data, t, directory=self._etsi_dir)
+            msg = decode(data, t)
         except V2xDecodeError as e:
             return self._strike(sender, t, e.reason, e.detail)
         except Exception as e:  # never let a datagram take the receiver down
@@ -398,7 +413,7 @@ class V2vReceiver:
 
     def _take_token(self, sender: _Sender, message_id: int, t: float) -> bool:
         p = self.params
-        roadside = message_id in (MSG_TRAFFIC_LIGHT, MSG_SPEED_LIMIT)
+        roadside = message_id in ROADSIDE_MESSAGE_IDS
         rate = p.max_roadside_rate_hz if roadside else p.max_rate_hz
         burst = float(p.roadside_burst if roadside else p.rate_burst)
         tokens, last = sender.buckets.get(message_id, (burst, t))
@@ -422,28 +437,30 @@ class V2vReceiver:
                 self.events["quarantined"] += 1
         return Verdict(None, reason, detail)
 
-    def _time_reason(self, gen_s: float, t: float) -> tuple[Reason, str] | None:
+    def _time_reason(self, gen_s: float, t: float, slack_s: float = 0.0) -> tuple[Reason, str] | None:
         p = self.params
         age = t - gen_s
-        if -p.max_future_s <= age <= p.max_age_s:
+        if -p.max_future_s <= age <= p.max_age_s + slack_s:
             return None
         if math.floor(gen_s / SECONDS_PER_DAY) != math.floor(t / SECONDS_PER_DAY):
             return Reason.ANOTHER_DAY, f"generated {age:.3f} s before receipt, on another (UTC) day"
-        if age > p.max_age_s:
-            return Reason.TOO_OLD, f"age {age:.3f} s > {p.max_age_s} s"
+        if age > p.max_age_s + slack_s:
+            return Reason.TOO_OLD, f"age {age:.3f} s > {p.max_age_s + slack_s} s"
         return Reason.FUTURE, f"generated {-age:.3f} s in the future (> {p.max_future_s} s)"
 
     def _plausible(self, sender: _Sender, msg: V2xMessage, t: float, own: GeoPoint | None) -> Verdict:
         p = self.params
-        timing = self._time_reason(msg.generation_time_s, t)
+        is_map = isinstance(msg, RoadMap)
+        timing = self._time_reason(msg.generation_time_s, t, p.map_time_slack_s if is_map else 0.0)
         if timing is not None:
             return self._strike(sender, t, *timing)
         key = _stream_key(msg)
         stream = sender.streams.get(key)
-        if stream is not None and t - stream.last.generation_time_s > p.track_timeout_s:
+        timeout = p.track_timeout_s + (p.map_time_slack_s if is_map else 0.0)
+        if stream is not None and t - stream.last.generation_time_s > timeout:
             stream = None  # a silent sender starts a new history (also after quarantine)
             del sender.streams[key]
-        if stream is not None and msg.generation_time_s <= stream.last.generation_time_s:
+        if not is_map and stream is not None and msg.generation_time_s <= stream.last.generation_time_s:
             return self._strike(
                 sender,
                 t,
@@ -451,14 +468,15 @@ class V2vReceiver:
                 f"generation time {msg.generation_time_s:.3f} s <= last accepted "
                 f"{stream.last.generation_time_s:.3f} s",
             )
-        position_needed = not (isinstance(msg, SpeedLimit) and msg.lane_position is not None)
-        if msg.lat_deg is None or msg.lon_deg is None:
-            if position_needed:
+        where = _position(msg)
+        if where is not None:
+            lat, lon = where
+            if lat is None or lon is None:
                 return Verdict(None, Reason.NO_POSITION, "latitude/longitude unavailable")
-        elif own is not None:
-            d = haversine_m(own.lat_deg, own.lon_deg, msg.lat_deg, msg.lon_deg)
-            if d > p.max_range_m:
-                return Verdict(None, Reason.OUT_OF_RANGE, f"{d:.0f} m from us > {p.max_range_m} m")
+            if own is not None:
+                d = haversine_m(own.lat_deg, own.lon_deg, lat, lon)
+                if d > p.max_range_m:
+                    return Verdict(None, Reason.OUT_OF_RANGE, f"{d:.0f} m from us > {p.max_range_m} m")
         if isinstance(msg, VehicleState):
             limits = self._vehicle_limits(msg)
             if limits is not None:
@@ -468,22 +486,30 @@ class V2vReceiver:
                 jump = self._jump(stream.last, msg)
                 if jump is not None:
                     return self._after_jump(sender, stream, msg, t, jump)
-        elif isinstance(msg, TrafficLightState):
-            ttc = msg.time_to_change_s
-            if ttc is not None and ttc > p.max_time_to_change_s:
-                return self._strike(
-                    sender,
-                    t,
-                    Reason.TIME_TO_CHANGE,
-                    f"time to change {ttc:.1f} s > {p.max_time_to_change_s} s",
-                )
-        elif not p.min_speed_limit_mps <= msg.limit_mps <= p.max_speed_limit_mps:
-            return self._strike(
-                sender,
-                t,
-                Reason.SPEED_LIMIT,
-                f"limit {msg.limit_mps * 3.6:.0f} km/h outside the plausible range",
-            )
+        elif isinstance(msg, SignalPhases):
+            for g in msg.groups:
+                ttc = g.time_to_change_s
+                if ttc is not None and ttc > p.max_time_to_change_s:
+                    return self._strike(
+                        sender,
+                        t,
+                        Reason.TIME_TO_CHANGE,
+                        f"signal group {g.signal_group}: time to change {ttc:.1f} s "
+                        f"> {p.max_time_to_change_s} s",
+                    )
+        elif isinstance(msg, RoadMap):
+            for lim in msg.speed_limits:
+                if not p.min_speed_limit_mps <= lim.limit_mps <= p.max_speed_limit_mps:
+                    return self._strike(
+                        sender,
+                        t,
+                        Reason.SPEED_LIMIT,
+                        f"zone {lim.zone_id}: limit {lim.limit_mps * 3.6:.0f} km/h is implausible",
+                    )
+        else:
+            limits = self._cooperative_limits(msg)
+            if limits is not None:
+                return self._strike(sender, t, *limits)
         self._remember(sender, key, msg)
         return Verdict(msg)
 
@@ -492,6 +518,17 @@ class V2vReceiver:
         sender.streams.move_to_end(key)
         if len(sender.streams) > self.params.max_streams_per_sender:
             sender.streams.popitem(last=False)
+
+    def _cooperative_limits(self, c: CooperativeState) -> tuple[Reason, str] | None:
+        p = self.params
+        if c.target_accel_mps2 is not None and abs(c.target_accel_mps2) > p.max_accel_mps2:
+            return (
+                Reason.ACCEL,
+                f"|target acceleration| {abs(c.target_accel_mps2):.2f} m/s^2 > {p.max_accel_mps2} m/s^2",
+            )
+        if c.cruise_speed_mps is not None and c.cruise_speed_mps > p.max_speed_mps:
+            return Reason.SPEED, f"cruise speed {c.cruise_speed_mps:.2f} m/s > {p.max_speed_mps} m/s"
+        return None
 
     def _vehicle_limits(self, v: VehicleState) -> tuple[Reason, str] | None:
         p = self.params
@@ -553,6 +590,6 @@ class V2vReceiver:
             stream.candidate, stream.candidate_count = msg, 1
         if stream.candidate_count >= self.params.reanchor_count:
             self.events["reanchored"] += 1
-            self._remember(sender, (MSG_VEHICLE_STATE,), msg)
+            self._remember(sender, (MSG_CAM,), msg)
             return Verdict(msg)
         return self._strike(sender, t, *jump)

@@ -5,10 +5,14 @@
 - `echo`: the round-trip responder, answering every ping at once (III-B.3 (2)).
 - `ping`: pings at a fixed interval, median / p99 / max round-trip time (the paper measured 1-50 ms).
 - `fuzz`: floods an address with hostile datagrams for a bounded count and time (III-B.3 (3)).
+- `encode STATE.json -o FILE`: the exact bytes of the CAM we would broadcast for a vehicle state in SI
+  units; `decode FILE`: any message we receive (CAM, iCLCM, SPATEM, MAPEM) as JSON in the same units. The
+  tools to debug interop with another stack.
 
 Every command defaults to loopback broadcast (`v2x://127.255.255.255:47100`): nothing leaves the machine
 unless you name a real interface's broadcast address. Exit status: 0 done, 1 the link failed its check
-(no reply at all, or loss above --max-loss), 2 bad arguments (argparse) or the address cannot be used.
+(no reply at all, or loss above --max-loss; `decode`: the bytes are not a message we take), 2 bad
+arguments (argparse), an unusable input file, or the address cannot be used.
 Standalone: `python -m bywire.protocol.v2x.v2x_cli COMMAND ...`.
 """
 
@@ -222,6 +226,140 @@ def main_fuzz(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------------- encode/decode
+
+STATE_KEYS = (
+    "station_id", "time_unix_s", "lat_deg", "lon_deg", "heading_rad", "speed_mps", "yaw_rate_radps",
+    "accel_mps2", "length_m", "width_m",
+)  # fmt: skip
+OPTIONAL_STATE_KEYS = ("drive_direction", "lane_position", "station_type")
+
+
+class StateFileError(ValueError):
+    """A vehicle-state file we cannot use; the text names the file and the field."""
+
+
+def read_state(path: Path) -> Any:
+    """A vehicle state in SI units from JSON (the keys of STATE_KEYS; null: unavailable) -> VehicleState."""
+    from .codec import DriveDirection, VehicleState
+
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as e:
+        raise StateFileError(f"{path}: {e.strerror or e}") from None
+    except json.JSONDecodeError as e:
+        raise StateFileError(f"{path}: line {e.lineno}, column {e.colno}: {e.msg}") from None
+    if not isinstance(doc, dict):
+        raise StateFileError(f"{path}: expected a JSON object with {', '.join(STATE_KEYS)}")
+    if doc.get("message", "CAM") != "CAM":
+        raise StateFileError(f"{path}: message: {doc['message']!r}, only a CAM's vehicle state encodes")
+    missing = [k for k in STATE_KEYS if k not in doc]
+    if missing:
+        raise StateFileError(f"{path}: missing {', '.join(missing)}")
+    unknown = sorted(set(doc) - set(STATE_KEYS) - set(OPTIONAL_STATE_KEYS) - {"message"})
+    if unknown:
+        raise StateFileError(f"{path}: unknown field {', '.join(unknown)} (fields: {', '.join(STATE_KEYS)})")
+    if not isinstance(doc["time_unix_s"], int | float) or isinstance(doc["time_unix_s"], bool):
+        raise StateFileError(f"{path}: time_unix_s: {doc['time_unix_s']!r} is not a number")
+    direction = doc.get("drive_direction")
+    try:
+        drive = None if direction is None else DriveDirection(direction)
+    except ValueError:
+        raise StateFileError(f"{path}: drive_direction: {direction!r} is not forward or backward") from None
+    extra: dict[str, Any] = {"drive_direction": drive, "lane_position": doc.get("lane_position")}
+    if "station_type" in doc:
+        extra["station_type"] = doc["station_type"]
+    return VehicleState(doc["station_id"], doc["time_unix_s"], *(doc[k] for k in STATE_KEYS[2:]), **extra)
+
+
+def message_json(msg: Any) -> dict[str, Any]:
+    """A decoded message as JSON in SI units: its fields, `time_unix_s` for its generation time."""
+    import dataclasses
+    import enum
+
+    from .wire import V2xMessage
+
+    def plain(v: Any) -> Any:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {("time_unix_s" if f.name == "generation_time_s" else f.name): plain(getattr(v, f.name))
+                    for f in dataclasses.fields(v)}  # fmt: skip
+        if isinstance(v, tuple):
+            return [plain(x) for x in v]
+        if isinstance(v, str):  # StrEnum members too
+            return str(v)
+        if isinstance(v, enum.IntEnum):
+            return v.name.lower()
+        return v
+
+    names = {"VehicleState": "CAM", "CooperativeState": "iCLCM", "SignalPhases": "SPATEM", "RoadMap": "MAPEM"}
+    assert isinstance(msg, V2xMessage)
+    return {"message": names[type(msg).__name__], **plain(msg)}
+
+
+def add_encode_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("state", type=Path, metavar="STATE.json", help="vehicle state in SI units (JSON)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE", help="write the CAM's bytes")
+    p.add_argument(
+        "--without-low-frequency",
+        action="store_true",
+        help="without the low-frequency container (a CAM within 500 ms of the last that had it)",
+    )
+
+
+def main_encode(args: argparse.Namespace) -> int:
+    from .codec import V2xEncodeError
+    from .wire import encode
+
+    try:
+        state = read_state(args.state)
+        data = encode(state, low_frequency=not args.without_low_frequency)
+    except StateFileError as e:
+        print(f"v2x encode: {e}", file=sys.stderr)
+        return 2
+    except V2xEncodeError as e:
+        print(f"v2x encode: {args.state}: {e}", file=sys.stderr)
+        return 2
+    try:
+        args.output.write_bytes(data)
+    except OSError as e:
+        print(f"v2x encode: {args.output}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    print(f"{args.output}: CAM of station {state.station_id}, {len(data)} bytes")
+    return 0
+
+
+def add_decode_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", type=Path, metavar="FILE", help="one datagram's bytes")
+    p.add_argument(
+        "--time",
+        type=float,
+        default=None,
+        metavar="UNIX_S",
+        help="receive time that resolves a CAM's/iCLCM's 65.536 s GenerationDeltaTime and a SPATEM's/MAPEM's "
+        "year (default: now)",
+    )
+
+
+def main_decode(args: argparse.Namespace) -> int:
+    import time
+
+    from .codec import V2xDecodeError
+    from .wire import decode
+
+    try:
+        data = args.file.read_bytes()
+    except OSError as e:
+        print(f"v2x decode: {args.file}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    try:
+        msg = decode(data, time.time() if args.time is None else args.time)
+    except V2xDecodeError as e:
+        print(f"v2x decode: {args.file}: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps(message_json(msg), indent=2))
+    return 0
+
+
 # ---------------------------------------------------------------------------------------------- wiring
 
 COMMANDS = {
@@ -233,6 +371,8 @@ COMMANDS = {
     "echo": (add_echo_arguments, main_echo, "round-trip responder: answers every ping at once"),
     "ping": (add_ping_arguments, main_ping, "round-trip times through an echo responder"),
     "fuzz": (add_fuzz_arguments, main_fuzz, "flood an address with hostile V2X datagrams (bounded)"),
+    "encode": (add_encode_arguments, main_encode, "a vehicle state (SI, JSON) -> the bytes of our CAM"),
+    "decode": (add_decode_arguments, main_decode, "a datagram (CAM, iCLCM, SPATEM, MAPEM) -> JSON in SI"),
 }
 
 

@@ -39,8 +39,9 @@ from bywire.hil.world.spec import (
 )
 from bywire.hil.world.traffic import EGO, World
 from bywire.hil.world.v2v import V2vBroadcaster
-from bywire.protocol.v2x.codec import VehicleState, decode
+from bywire.protocol.v2x.codec import VehicleState
 from bywire.protocol.v2x.receiver import V2vReceiver
+from bywire.protocol.v2x.wire import decode, encode
 
 EPOCH = 1305374400.0
 
@@ -271,7 +272,7 @@ def _broadcast(sender: V2vSenderSpec, seconds: float) -> list[tuple[float, Vehic
         world.place_ego(t, 0.0, 0.0, 0.0, 0.0, 0.0)
         world.step(t)
         for payload in bc.due(t):
-            msg = decode(payload)
+            msg = decode(payload, EPOCH + t)
             assert isinstance(msg, VehicleState)
             out.append((t, msg))
     return out
@@ -288,8 +289,6 @@ def test_broadcast_rate_latency_and_that_the_receiver_accepts_it() -> None:
 
 
 def _reencode(m: VehicleState) -> bytes:
-    from bywire.protocol.v2x.codec import encode
-
     return encode(m)
 
 
@@ -378,14 +377,17 @@ def test_mutated_worlds_parse_or_name_the_field(data: st.DataObject) -> None:
 
 def test_road_side_broadcasts_decode_and_pass_the_receiver() -> None:
     from bywire.hil.world.spec import RoadsideSpec
-    from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightPhase, TrafficLightState
+    from bywire.protocol.v2x.codec import TrafficLightPhase
+    from bywire.protocol.v2x.dsrc import RoadMap, SignalPhases
+    from bywire.protocol.v2x.roadside import RoadsideView
 
     light = RoadsideSpec("traffic_light", 500.0, 9001, phases=((0.0, "green"), (3.0, "amber"), (6.0, "red")))
     limit = RoadsideSpec("speed_limit", 800.0, 9002, limit_mps=19.44)
     world = World(dataclasses.replace(world_of(), roadside=(light, limit)))
     bc = V2vBroadcaster(world, lambda t: EPOCH + t)
     rx = V2vReceiver()
-    seen: list[object] = []
+    view = RoadsideView()
+    lights, limits, maps = [], [], 0
     for k in range(1, 801):
         t = 0.01 * k
         world.place_ego(t, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -393,12 +395,19 @@ def test_road_side_broadcasts_decode_and_pass_the_receiver() -> None:
         for payload in bc.due(t):
             verdict = rx.check(payload, EPOCH + t)
             assert verdict.accepted, verdict
-            seen.append(verdict.message)
-    lights = [m for m in seen if isinstance(m, TrafficLightState)]
-    limits = [m for m in seen if isinstance(m, SpeedLimit)]
-    assert len(lights) == pytest.approx(80, abs=1) and len(limits) == pytest.approx(16, abs=1)
+            if isinstance(verdict.message, RoadMap):
+                limits.extend(view.learn(verdict.message))
+                maps += 1
+            else:
+                assert isinstance(verdict.message, SignalPhases)
+                lights.extend(view.place(verdict.message))
+    # SPATEMs at 10 Hz, each light's MAPEM at 1 Hz from the start: every phase is placed.
+    assert len(lights) == pytest.approx(80, abs=1) and view.unplaced == 0
+    assert maps == 2 * 8 and len(limits) == 8
     at_4s = min(lights, key=lambda m: abs(m.generation_time_s - EPOCH - 4.0))
-    assert at_4s.phase == TrafficLightPhase.AMBER and at_4s.time_to_change_s == pytest.approx(2.0, abs=0.01)
+    assert at_4s.phase == TrafficLightPhase.AMBER and at_4s.time_to_change_s == pytest.approx(2.0, abs=0.05)
+    x, y = world.road.frame.to_local(at_4s.lat_deg, at_4s.lon_deg)
+    assert (x, y) == pytest.approx((500.0, 0.0), abs=0.01)
     x, y = world.road.frame.to_local(limits[0].lat_deg, limits[0].lon_deg)
     assert (x, y) == pytest.approx((800.0, 0.0), abs=0.01)
     assert limits[0].limit_mps == pytest.approx(19.44, abs=0.01)

@@ -1,6 +1,6 @@
-"""Interoperability of the V2X codec (cooperative driving): real ETSI CAM frames, decoded with the real ETSI
-schemas chosen by their protocolVersion, into our VehicleState; read in place from ../shared/data/v2x_asn1,
-never copied."""
+"""Real ETSI CAM frames off the air (cooperative driving), decoded with the schema of their protocolVersion
+(the shipped copies, and the shared ones read in place from ../shared/data/v2x_asn1) into our VehicleState,
+and taken by the receiver."""
 
 from __future__ import annotations
 
@@ -18,20 +18,18 @@ from bywire.protocol.v2x.codec import (
     DriveDirection,
     V2xDecodeError,
     VehicleState,
-    decode,
-    encode,
     unix_to_timestamp_its,
 )
 from bywire.protocol.v2x.etsi_cam import (
     EtsiCamSchema,
     EtsiSchemaMissing,
-    decode_any,
+    compiled_etsi_spec,
     decode_etsi_cam,
     etsi_asn1_dir,
     from_etsi_cam,
-    resolve_generation_delta,
 )
-from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver, haversine_m
+from bywire.protocol.v2x.receiver import GeoPoint, V2vReceiver, haversine_m
+from bywire.protocol.v2x.wire import decode, encode
 
 DATA_DIR = shared_data_dir() / "v2x_asn1"
 REAL = DATA_DIR / "cam_uper_real_vectors_from_issue_threads.json"
@@ -59,7 +57,8 @@ def real() -> dict[str, bytes]:
 def test_protocol_version_2_cam_off_the_air(real: dict[str, bytes]) -> None:
     frame = real["pycrate_issue_156"]
     assert frame[0] == 2
-    v = from_etsi_cam(frame, T0_S, directory=DATA_DIR)
+    v = from_etsi_cam(frame, T0_S)
+    assert from_etsi_cam(frame, T0_S, directory=DATA_DIR) == v  # the shipped schema is the shared one
     assert v.station_id == 55552
     assert v.speed_mps == 0.0
     assert v.width_m == 1.8 and v.length_m == 4.4
@@ -80,7 +79,8 @@ def test_protocol_version_2_cam_off_the_air(real: dict[str, bytes]) -> None:
 def test_protocol_version_1_cam_off_the_air(real: dict[str, bytes]) -> None:
     frame = real["vanetza_issue_201"]
     assert frame[0] == 1
-    v = from_etsi_cam(frame, T0_S, directory=DATA_DIR)
+    v = from_etsi_cam(frame, T0_S)
+    assert from_etsi_cam(frame, T0_S, directory=DATA_DIR) == v
     assert v.station_id == 78880133
     assert v.speed_mps == 6.67
     assert v.drive_direction is DriveDirection.FORWARD
@@ -93,8 +93,8 @@ def test_protocol_version_1_cam_off_the_air(real: dict[str, bytes]) -> None:
 
 def test_schema_is_chosen_by_protocol_version(real: dict[str, bytes]) -> None:
     v2, v1 = real["pycrate_issue_156"], real["vanetza_issue_201"]
-    assert decode_etsi_cam(v2, directory=DATA_DIR)[0] is EtsiCamSchema.CAM_2_3_1
-    assert decode_etsi_cam(v1, directory=DATA_DIR)[0] is EtsiCamSchema.CAM_1_3_2
+    assert decode_etsi_cam(v2)[0] is EtsiCamSchema.CAM_1_4_1
+    assert decode_etsi_cam(v1)[0] is EtsiCamSchema.CAM_1_3_2
     # The other version's schema fails on each (at curvatureCalculationMode, as SOURCES.md says).
     for frame, wrong in (
         (v2, EtsiCamSchema.CAM_1_3_2),
@@ -102,15 +102,17 @@ def test_schema_is_chosen_by_protocol_version(real: dict[str, bytes]) -> None:
         (v1, EtsiCamSchema.CAM_1_4_1),
     ):
         with pytest.raises(V2xDecodeError) as err:
-            from_etsi_cam(frame, T0_S, schema=wrong, directory=DATA_DIR)
+            from_etsi_cam(
+                frame, T0_S, schema=wrong, directory=DATA_DIR if wrong is EtsiCamSchema.CAM_2_3_1 else None
+            )
         assert err.value.reason is DecodeReason.MALFORMED
         assert "curvatureCalculation" in str(err.value)
-    # CAM v1.4.1 + CDD 1.3.1 reads the protocolVersion-2 frame to the same state as release 2.
-    assert from_etsi_cam(v2, T0_S, schema=EtsiCamSchema.CAM_1_4_1, directory=DATA_DIR) == from_etsi_cam(
-        v2, T0_S, directory=DATA_DIR
+    # Release 2 (CAM 2.3.1 + CDD 2.4.1, shared data only) reads the protocolVersion-2 frame to the same state.
+    assert from_etsi_cam(v2, T0_S, schema=EtsiCamSchema.CAM_2_3_1, directory=DATA_DIR) == from_etsi_cam(
+        v2, T0_S
     )
     with pytest.raises(V2xDecodeError) as err:
-        from_etsi_cam(bytes([7]) + v2[1:], T0_S, directory=DATA_DIR)
+        from_etsi_cam(bytes([7]) + v2[1:], T0_S)
     assert err.value.reason is DecodeReason.BAD_VERSION
 
 
@@ -119,9 +121,9 @@ def test_asn1tools_boundary_vectors_with_the_1_3_2_schema() -> None:
     m1 = frames["message1_basicVehicleHF"]
     # Header messageID 1 (denm): not a CAM unless told to ignore it.
     with pytest.raises(V2xDecodeError) as err:
-        from_etsi_cam(m1, T0_S, directory=DATA_DIR)
+        from_etsi_cam(m1, T0_S)
     assert err.value.reason is DecodeReason.UNKNOWN_MESSAGE
-    v = from_etsi_cam(m1, T0_S, schema=EtsiCamSchema.CAM_1_3_2, directory=DATA_DIR, check_message_id=False)
+    v = from_etsi_cam(m1, T0_S, schema=EtsiCamSchema.CAM_1_3_2, check_message_id=False)
     assert v.station_id == 2**32 - 1
     assert v.lat_deg == -90.0 and v.lon_deg is None  # longitude unavailable: no centre shift either
     assert v.speed_mps is None  # 16383
@@ -131,50 +133,38 @@ def test_asn1tools_boundary_vectors_with_the_1_3_2_schema() -> None:
     # Vector 2 says protocolVersion 2 but is laid out as 1.3.2: by its version it does not decode.
     m2 = frames["message2_basicVehicleHF_with_cenDsrcTollingZone"]
     with pytest.raises(V2xDecodeError):
-        from_etsi_cam(m2, T0_S, directory=DATA_DIR, check_message_id=False)
-    assert from_etsi_cam(m2, T0_S, schema=EtsiCamSchema.CAM_1_3_2, directory=DATA_DIR, check_message_id=False)
+        from_etsi_cam(m2, T0_S, check_message_id=False)
+    assert from_etsi_cam(m2, T0_S, schema=EtsiCamSchema.CAM_1_3_2, check_message_id=False)
     rsu = frames["message3_rsuHF"]
     with pytest.raises(V2xDecodeError) as err:
-        from_etsi_cam(rsu, T0_S, schema=EtsiCamSchema.CAM_1_3_2, directory=DATA_DIR, check_message_id=False)
+        from_etsi_cam(rsu, T0_S, schema=EtsiCamSchema.CAM_1_3_2, check_message_id=False)
     assert err.value.reason is DecodeReason.NOT_A_VEHICLE
-
-
-@pytest.mark.parametrize("offset_ms", [0, 1, 32_767, -32_768, 20_000, -20_000])
-def test_generation_delta_resolves_to_the_nearest_instant(offset_ms: int) -> None:
-    ref = T0_S
-    true_ms = unix_to_timestamp_its(ref) + offset_ms
-    got = resolve_generation_delta(true_ms % 65536, ref)
-    assert unix_to_timestamp_its(got) == true_ms
 
 
 def test_receiver_takes_real_cams_next_to_ours(real: dict[str, bytes]) -> None:
     v1, v2 = real["vanetza_issue_201"], real["pycrate_issue_156"]
-    rx = V2vReceiver(ReceiverParams(accept_etsi_cam=True, etsi_asn1_dir=DATA_DIR))
+    rx = V2vReceiver()
     near_v1 = GeoPoint(52.17, 5.39)
     # Received 50 ms after generation (a CAM's time is only known modulo 65.536 s).
-    t1 = from_etsi_cam(v1, T0_S, directory=DATA_DIR).generation_time_s + 0.05
+    t1 = from_etsi_cam(v1, T0_S).generation_time_s + 0.05
     state = rx.receive(v1, t1, near_v1)
     assert state is not None and state.station_id == 78880133
     # The other CAM lies in Spain: out of range of a receiver in the Netherlands.
-    t2 = from_etsi_cam(v2, T0_S, directory=DATA_DIR).generation_time_s + 0.05
+    t2 = from_etsi_cam(v2, T0_S).generation_time_s + 0.05
     assert rx.check(v2, t2, near_v1).reason == "out_of_range"
     # Seen 20 s after generation it is too old (the nearest-instant resolution keeps the 20 s).
     assert rx.check(v1, t1 + 20.0, near_v1).reason == "too_old"
-    # Without accept_etsi_cam a CAM is just an unknown message.
-    plain = V2vReceiver()
-    assert plain.check(v1, t1, near_v1).reason == "unknown_message"
-    assert rx.received == rx.accepted + sum(rx.rejected.values()) == 3
+    # Ours beside them, from a car near the first.
+    ours = encode(VehicleState(5, t1, 52.1698, 5.3904, 0.0, 10.0, 0.0, 0.0, 4.5, 1.8))
+    assert rx.receive(ours, t1 + 0.01, near_v1) is not None
+    assert rx.received == rx.accepted + sum(rx.rejected.values()) == 4
 
 
-def test_decode_any_dispatches_on_the_message_id(real: dict[str, bytes]) -> None:
-    ours = encode(VehicleState(5, T0_S, 49.0, 8.4, 0.0, 10.0, 0.0, 0.0, 4.5, 1.8))
-    assert decode_any(ours, T0_S) == decode(ours)
+def test_decode_dispatches_real_cams_and_ours_alike(real: dict[str, bytes]) -> None:
     cam = real["vanetza_issue_201"]
-    with pytest.raises(V2xDecodeError) as err:
-        decode_any(cam, T0_S)
-    assert err.value.reason is DecodeReason.UNKNOWN_MESSAGE
-    state = decode_any(cam, T0_S, etsi_cam=True, directory=DATA_DIR)
+    state = decode(cam, T0_S)
     assert isinstance(state, VehicleState) and state.station_id == 78880133
+    assert state == from_etsi_cam(cam, T0_S)
 
 
 def test_missing_schemas_are_reported_with_where_we_looked(
@@ -184,8 +174,9 @@ def test_missing_schemas_are_reported_with_where_we_looked(
     with pytest.raises(EtsiSchemaMissing) as err:
         etsi_asn1_dir()
     assert str(tmp_path) in str(err.value) and "BYWIRE_ETSI_ASN1_DIR" in str(err.value)
-    # A receiver asked to take CAMs fails at construction, not on the first CAM.
+    # Only release 2 (and an explicit directory) needs the shared files; the shipped ones do not.
     with pytest.raises(EtsiSchemaMissing):
-        V2vReceiver(ReceiverParams(accept_etsi_cam=True))
+        compiled_etsi_spec(EtsiCamSchema.CAM_2_3_1)
+    assert compiled_etsi_spec(EtsiCamSchema.CAM_1_4_1) is not None
     monkeypatch.setenv("BYWIRE_ETSI_ASN1_DIR", str(DATA_DIR))
     assert etsi_asn1_dir() == DATA_DIR

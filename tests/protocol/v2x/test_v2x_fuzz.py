@@ -16,10 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bywire.protocol.v2x.codec import DriveDirection, V2xDecodeError, VehicleState, encode, peek_header
+from bywire.protocol.v2x.codec import DriveDirection, V2xDecodeError, VehicleState, peek_header
 from bywire.protocol.v2x.fuzz import FuzzKind, V2xFuzzer, flood, fuzz_receiver, retime
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
 from bywire.protocol.v2x.transport import PeriodicSender, V2xTransport
+from bywire.protocol.v2x.wire import encode
 
 T0_S = 1_700_000_000.0
 OWN = GeoPoint(49.0, 8.4)
@@ -56,6 +57,7 @@ def test_fuzzer_is_deterministic_and_covers_every_kind() -> None:
 
 
 def test_retime_is_the_same_as_encoding_with_that_time() -> None:
+    # GenerationDeltaTime sits in bytes 6..7 of a CAM, whatever follows it.
     v = VehicleState(77, T0_S, 49.0, 8.4, 0.1, 20.0, 0.0, 0.0, 4.5, 1.8, DriveDirection.FORWARD, 2, 9)
     for t in (T0_S + 0.001, T0_S + 12345.678, 1_072_915_200.0):
         assert retime(encode(v), t) == encode(dataclasses.replace(v, generation_time_s=t))

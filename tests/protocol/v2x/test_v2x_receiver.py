@@ -14,12 +14,13 @@ from bywire.protocol.v2x.codec import (
     DriveDirection,
     SpeedLimit,
     TrafficLightPhase,
-    TrafficLightState,
     VehicleState,
-    encode,
 )
+from bywire.protocol.v2x.dsrc import IntersectionMap, RoadMap, SignalGroupState, SignalPhases, StopLine
+from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver, haversine_m
 from bywire.protocol.v2x.transport import Datagram
+from bywire.protocol.v2x.wire import encode
 
 T0_S = 1_700_000_000.0  # 22:13:20 UTC
 OWN = GeoPoint(49.0, 8.4)
@@ -101,9 +102,11 @@ def test_receive_all_uses_each_datagrams_receive_time() -> None:
         (-0.199, None),  # max_future_s is 0.2 s
         (-0.202, "future"),
         (30.0, "too_old"),
-        (86_400.0, "another_day"),
-        (-86_400.0, "another_day"),
-        (T0_S - 1_072_915_200.0, "another_day"),  # TimestampIts 0: a sender with an unset clock
+        # A CAM's time is TimestampIts mod 65 536 ms: a day lands on its residue, 86 400 000 ms = 1318 wraps
+        # + 23 552 ms, so a day-old CAM looks 23.6 s old and a day-early one 23.6 s in the future.
+        (86_400.0, "too_old"),
+        (-86_400.0, "future"),
+        (65.536, None),  # a whole wrap later: the time checks cannot tell (its history's checks can)
     ],
 )
 def test_generation_time_gates(age_s: float, reason: str | None) -> None:
@@ -111,13 +114,26 @@ def test_generation_time_gates(age_s: float, reason: str | None) -> None:
     assert rx.check(encode(state(t=T0_S - age_s)), T0_S, OWN).reason == reason
 
 
+def phases(station: int = 50, t: float = T0_S, intersection: int = 17, **changes: object) -> SignalPhases:
+    group = SignalGroupState(intersection, 1, TrafficLightPhase.GREEN, 20.0)
+    return SignalPhases(station, t, (dataclasses.replace(group, **changes),))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("age_s", "reason"),
+    [(0.5, None), (1.5, "too_old"), (86_400.0, "another_day"), (-86_400.0, "another_day")],
+)
+def test_spatem_time_is_absolute(age_s: float, reason: str | None) -> None:
+    assert V2vReceiver().check(encode(phases(t=T0_S - age_s)), T0_S, OWN).reason == reason
+
+
 def test_midnight_is_not_another_day() -> None:
     midnight = 1_700_006_400.0  # 2023-11-15T00:00:00Z
     assert midnight % 86_400 == 0
     rx = V2vReceiver()
-    assert rx.check(encode(state(t=midnight - 0.05)), midnight + 0.02, OWN).accepted
+    assert rx.check(encode(phases(t=midnight - 0.05)), midnight + 0.02, OWN).accepted
     # Too old across midnight is "another day": the paper's test ("a timestamp of today").
-    assert rx.check(encode(state(station=8, t=midnight - 5.0)), midnight + 0.02, OWN).reason == "another_day"
+    assert rx.check(encode(phases(51, t=midnight - 5.0)), midnight + 0.02, OWN).reason == "another_day"
 
 
 def test_replays_are_rejected_per_sender() -> None:
@@ -297,7 +313,7 @@ def test_manual_blacklist_own_station_and_expiry() -> None:
 def test_garbage_is_counted_by_reason() -> None:
     rx = V2vReceiver()
     good = encode(state())
-    for data in (b"", b"\x01\xc8", good + b"\x00", good[:-3], b"\x09" * 40, good + bytes(2000)):
+    for data in (b"", b"\x02\x02", good + b"\x00", good[:-3], b"\x09" * 40, good + bytes(2000)):
         assert rx.check(data, T0_S, OWN).message is None
     assert rx.v2v_rejected() == {
         "too_short": 2,
@@ -319,58 +335,71 @@ def test_sender_table_is_bounded() -> None:
 # ---------------------------------------------------------------------------------------------- road side
 
 
-def light(station: int = 50, t: float = T0_S, group: int = 1, **changes: object) -> TrafficLightState:
-    lat, lon = north_of(OWN, 300.0)
-    tl = TrafficLightState(station, t, 17, group, lat, lon, TrafficLightPhase.GREEN, 20.0, 1)
-    return dataclasses.replace(tl, **changes)  # type: ignore[arg-type]
-
-
 def test_traffic_lights() -> None:
     rx = V2vReceiver()
-    # One RSU, four signal groups, one generation time: four streams, all accepted.
-    assert all(rx.check(encode(light(group=g)), T0_S + 0.01, OWN).accepted for g in range(4))
-    assert rx.check(encode(light(group=2)), T0_S + 0.02, OWN).reason == "replayed"
-    assert rx.check(encode(light(t=T0_S + 0.1, time_to_change_s=300.0)), T0_S + 0.1, OWN).accepted
+    # One RSU, four signal groups in one SPATEM: one stream per intersection.
+    groups = tuple(SignalGroupState(17, g, TrafficLightPhase.GREEN, 20.0) for g in range(4))
+    assert rx.check(encode(SignalPhases(50, T0_S, groups)), T0_S + 0.01, OWN).accepted
+    assert rx.check(encode(SignalPhases(50, T0_S, groups)), T0_S + 0.02, OWN).reason == "replayed"
+    assert rx.check(encode(phases(t=T0_S, intersection=18)), T0_S + 0.02, OWN).accepted
+    assert rx.check(encode(phases(t=T0_S + 0.1, time_to_change_s=300.0)), T0_S + 0.1, OWN).accepted
     assert (
-        rx.check(encode(light(t=T0_S + 0.2, time_to_change_s=300.1)), T0_S + 0.2, OWN).reason
+        rx.check(encode(phases(t=T0_S + 0.2, time_to_change_s=300.1)), T0_S + 0.2, OWN).reason
         == "time_to_change_implausible"
     )
-    assert rx.check(encode(light(t=T0_S + 0.3, phase=None, time_to_change_s=None)), T0_S + 0.3, OWN).accepted
-    assert rx.check(encode(light(51, lat_deg=None)), T0_S, OWN).reason == "no_position"
-    assert rx.check(encode(light(52, t=T0_S - 2.0)), T0_S, OWN).reason == "too_old"
+    assert rx.check(encode(phases(t=T0_S + 0.3, phase=None, time_to_change_s=None)), T0_S + 0.3, OWN).accepted
+    assert rx.check(encode(phases(52, t=T0_S - 2.0)), T0_S, OWN).reason == "too_old"
     invariant(rx)
 
 
-def test_speed_limits() -> None:
+def road_map(station: int, t: float = T0_S, *, north_m: float = 300.0, **zone: object) -> RoadMap:
+    lat, lon = north_of(OWN, north_m)
+    if zone:
+        limit = SpeedLimit(station, t, 3, lat, lon, 80 / 3.6, math.pi / 2)
+        return RoadMap(station, t, speed_limits=(dataclasses.replace(limit, **zone),))  # type: ignore[arg-type]
+    return RoadMap(station, t, (IntersectionMap(17, (StopLine(1, lat, lon, math.pi / 2),)),))
+
+
+def test_maps_and_speed_limits() -> None:
     rx = V2vReceiver()
-    lat, lon = north_of(OWN, 100.0)
-    assert rx.check(encode(SpeedLimit(60, T0_S, 3, lat, lon, 80 / 3.6)), T0_S, OWN).accepted
-    # A lane reference without a position is enough for a speed-limit zone.
-    assert rx.check(encode(SpeedLimit(61, T0_S, 4, None, None, 80 / 3.6, 1)), T0_S, OWN).accepted
-    assert rx.check(encode(SpeedLimit(62, T0_S, 5, None, None, 80 / 3.6)), T0_S, OWN).reason == "no_position"
-    assert (
-        rx.check(encode(SpeedLimit(63, T0_S, 6, lat, lon, 200 / 3.6)), T0_S, OWN).reason
-        == "speed_limit_implausible"
-    )
-    assert (
-        rx.check(encode(SpeedLimit(64, T0_S, 7, lat, lon, 3 / 3.6)), T0_S, OWN).reason
-        == "speed_limit_implausible"
-    )
-    far_lat, far_lon = north_of(OWN, 5000.0)
-    assert (
-        rx.check(encode(SpeedLimit(65, T0_S, 8, far_lat, far_lon, 80 / 3.6)), T0_S, OWN).reason
-        == "out_of_range"
-    )
+    assert rx.check(encode(road_map(60)), T0_S + 0.5, OWN).accepted
+    # A map's time is its minute (T0_S is 20 s into one): the same map again within the minute is fine.
+    assert rx.check(encode(road_map(60)), T0_S + 0.6, OWN).accepted
+    assert rx.check(encode(road_map(61, T0_S - 15.0)), T0_S + 0.5, OWN).accepted
+    assert rx.check(encode(road_map(62, T0_S - 125.0)), T0_S + 0.5, OWN).reason == "too_old"
+    assert rx.check(encode(road_map(63, limit_mps=80 / 3.6)), T0_S, OWN).accepted
+    assert rx.check(encode(road_map(64, limit_mps=200 / 3.6)), T0_S, OWN).reason == "speed_limit_implausible"
+    assert rx.check(encode(road_map(65, limit_mps=3 / 3.6)), T0_S, OWN).reason == "speed_limit_implausible"
+    assert rx.check(encode(road_map(66, lat_deg=None)), T0_S, OWN).reason == "no_position"
+    assert rx.check(encode(road_map(67, north_m=5000.0)), T0_S, OWN).reason == "out_of_range"
+    far_lines = road_map(68, north_m=5000.0)
+    assert rx.check(encode(far_lines), T0_S, OWN).reason == "out_of_range"
+    invariant(rx)
+
+
+def test_cooperative_states() -> None:
+    # the iCLCM itself ends at +-10 m/s^2 and 50 m/s
+    rx = V2vReceiver(ReceiverParams(max_accel_mps2=8.0, max_speed_mps=40.0))
+    ok = CooperativeState(7, T0_S, ControllerType.CACC, -3.0, 0.6, 25.0)
+    got = rx.receive(encode(ok), T0_S + 0.02, OWN)
+    assert isinstance(got, CooperativeState) and got.target_accel_mps2 == -3.0
+    assert rx.check(encode(ok), T0_S + 0.03, OWN).reason == "replayed"
+    hard = dataclasses.replace(ok, station_id=8, target_accel_mps2=-9.5)
+    assert rx.check(encode(hard), T0_S + 0.02, OWN).reason == "accel_implausible"
+    fast = dataclasses.replace(ok, station_id=9, cruise_speed_mps=45.0)
+    assert rx.check(encode(fast), T0_S + 0.02, OWN).reason == "speed_implausible"
+    # A vehicle's CAM and its iCLCM are two streams of one sender.
+    assert rx.check(encode(state(7, T0_S)), T0_S + 0.02, OWN).accepted
+    invariant(rx)
 
 
 def test_roadside_rate_is_per_message_kind() -> None:
     rx = V2vReceiver()
-    # 16 signal groups at once is fine for an RSU (roadside_burst), the 17th back to back is limited.
-    reasons = [rx.check(encode(light(group=g)), T0_S, OWN).reason for g in range(17)]
+    # 16 SPATEMs at once is fine for an RSU (roadside_burst), the 17th back to back is limited.
+    reasons = [rx.check(encode(phases(intersection=g)), T0_S, OWN).reason for g in range(17)]
     assert reasons == [None] * 16 + ["rate_limited"]
-    # Its speed-limit messages have their own bucket.
-    lat, lon = north_of(OWN, 100.0)
-    assert rx.check(encode(SpeedLimit(50, T0_S, 1, lat, lon, 25.0)), T0_S, OWN).accepted
+    # Its MAPEMs have their own bucket.
+    assert rx.check(encode(road_map(50)), T0_S, OWN).accepted
 
 
 def test_params_are_validated() -> None:
@@ -388,7 +417,8 @@ def test_params_are_validated() -> None:
 @st.composite
 def hostile_sequences(draw: st.DrawFn) -> list[tuple[bytes, float]]:
     base = [encode(state(s, T0_S + 0.1 * k, 50.0 + 2.5 * k)) for s in (7, 8) for k in range(5)]
-    base += [encode(light(group=1)), encode(SpeedLimit(60, T0_S, 3, 49.001, 8.4, 25.0))]
+    base += [encode(phases()), encode(road_map(60)), encode(road_map(61, limit_mps=25.0))]
+    base += [encode(CooperativeState(9, T0_S, ControllerType.ACC, 1.0))]
     out = []
     t = T0_S
     for _ in range(draw(st.integers(1, 40))):
@@ -413,6 +443,7 @@ def test_hostile_sequences_never_raise_and_always_add_up(seq: list[tuple[bytes, 
         assert (verdict.message is None) == (verdict.reason is not None)
         if verdict.message is not None:
             assert verdict.message.station_id != 8
-            assert abs(t - verdict.message.generation_time_s) <= 1.0 + 1e-9
+            slack = 60.0 if isinstance(verdict.message, RoadMap) else 0.0  # a map's time is its minute
+            assert abs(t - verdict.message.generation_time_s) <= 1.0 + slack + 1e-9
     invariant(rx)
     assert rx.received == len(seq)

@@ -1,6 +1,7 @@
 """The V2X link as two modules (seed 003 sections II and IV-B): `V2vRxIo` hands every datagram to the
-hardened `protocol.v2x.receiver.V2vReceiver` and publishes what it accepted with the rejection counts;
-`V2vTxIo` broadcasts our own CAM at 10-25 Hz from the pose.
+hardened `protocol.v2x.receiver.V2vReceiver` and publishes what it accepted with the rejection counts
+(CAMs as vehicles, SPATEM phases placed at their MAPEM stop lines as lights, MAPEM zones as limits);
+`V2vTxIo` broadcasts our own ETSI CAM at 10-25 Hz from the pose, its low-frequency container every 500 ms.
 
 Time: V2V generation times are UNIX seconds on the wire; `V2vRxIo` maps them onto the runtime clock with
 the host's `unix_time(now)` (SIL: the scenario's epoch + simulated time; HIL: the wall clock's offset to
@@ -27,14 +28,12 @@ from bywire.host.modules.gcdc_messages import (
     V2vVehicle,
 )
 from bywire.host.runtime.module import Module, ModuleContext
-from bywire.protocol.v2x.codec import (
-    GEN_TIME_RESOLUTION_S,
-    SpeedLimit,
-    TrafficLightState,
-    VehicleState,
-    encode,
-)
+from bywire.protocol.v2x.codec import GEN_TIME_RESOLUTION_S, SpeedLimit, TrafficLightState, VehicleState
+from bywire.protocol.v2x.dsrc import RoadMap, SignalPhases
+from bywire.protocol.v2x.etsi_cam import LowFrequencyClock
 from bywire.protocol.v2x.receiver import GeoPoint, ReceiverParams, V2vReceiver
+from bywire.protocol.v2x.roadside import RoadsideView
+from bywire.protocol.v2x.wire import encode
 
 MAX_DATAGRAMS_PER_RELEASE = 200  # bounds a release under a flood; the rest waits in the socket buffer
 
@@ -56,6 +55,7 @@ class V2vRxIo(Module):
         self.transport = transport
         self.unix_time = unix_time
         self.receiver = V2vReceiver(params, own_station_id=own_station_id, clock=lambda: math.nan)
+        self.roadside = RoadsideView()
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -69,6 +69,31 @@ class V2vRxIo(Module):
         for d in datagrams:
             msg = self.receiver.check(d.payload, d.rx_time_s, own).message
             t_rx = d.rx_time_s - offset
+            placed: list[TrafficLightState | SpeedLimit] = []
+            if isinstance(msg, SignalPhases):
+                placed.extend(self.roadside.place(msg))
+            elif isinstance(msg, RoadMap):
+                placed.extend(self.roadside.learn(msg))
+            for item in placed:
+                if (
+                    isinstance(item, TrafficLightState)
+                    and item.lat_deg is not None
+                    and item.lon_deg is not None
+                ):
+                    lights.append(
+                        V2vLight(
+                            item.station_id, item.generation_time_s - offset, item.intersection_id,
+                            item.signal_group, item.lat_deg, item.lon_deg,
+                            "" if item.phase is None else str(item.phase), _nan(item.time_to_change_s),
+                        )
+                    )  # fmt: skip
+                elif isinstance(item, SpeedLimit) and item.lat_deg is not None and item.lon_deg is not None:
+                    limits.append(
+                        V2vLimit(
+                            item.station_id, item.generation_time_s - offset, item.zone_id, item.lat_deg,
+                            item.lon_deg, item.limit_mps,
+                        )
+                    )  # fmt: skip
             if isinstance(msg, VehicleState):
                 if (
                     msg.lat_deg is None
@@ -92,26 +117,6 @@ class V2vRxIo(Module):
                         width_m=msg.width_m if msg.width_m is not None else 1.8,
                     )
                 )
-            elif isinstance(msg, TrafficLightState) and msg.lat_deg is not None and msg.lon_deg is not None:
-                lights.append(
-                    V2vLight(
-                        msg.station_id,
-                        msg.generation_time_s - offset,
-                        msg.intersection_id,
-                        msg.signal_group,
-                        msg.lat_deg,
-                        msg.lon_deg,
-                        "" if msg.phase is None else str(msg.phase),
-                        _nan(msg.time_to_change_s),
-                    )
-                )
-            elif isinstance(msg, SpeedLimit) and msg.lat_deg is not None and msg.lon_deg is not None:
-                limits.append(
-                    V2vLimit(
-                        msg.station_id, msg.generation_time_s - offset, msg.zone_id, msg.lat_deg, msg.lon_deg,
-                        msg.limit_mps,
-                    )
-                )  # fmt: skip
         rx = self.receiver
         ctx.publish(
             V2V_RECEIVED,
@@ -128,7 +133,7 @@ class V2vRxIo(Module):
 
 
 class V2vTxIo(Module):
-    """Our own CAM-shaped state from the pose (seed 003 IV-B's vector), at the module's rate (10-25 Hz)."""
+    """Our own ETSI CAM from the pose (seed 003 IV-B's vector), at the module's rate (10-25 Hz)."""
 
     def __init__(
         self,
@@ -147,6 +152,7 @@ class V2vTxIo(Module):
         self.width_m = width_m
         self.count = 0
         self._last_gen = -math.inf
+        self._low_frequency = LowFrequencyClock()
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -173,7 +179,8 @@ class V2vTxIo(Module):
                 length_m=self.length_m,
                 width_m=self.width_m,
             )
-            sent = bool(self.transport.send(encode(state)))
+            lf = self._low_frequency.due(gen)
+            sent = bool(self.transport.send(encode(state, low_frequency=lf)))
             self._last_gen = gen
             self.count += int(sent)
         ctx.publish(V2V_SENT, CamSent(now, sent, self.station_id, gen, self.count))
