@@ -288,6 +288,7 @@ class ScriptedCar:
     # the graph edges its path runs along, for its lane match (the world model's LaneIndex.match,
     # known exactly here); None: match it with the LaneIndex
     spans: list[tuple[EdgeKey, float, float]] | None = None
+    appears_at_s: float = 0.0  # seen (and there) from this time on: a box set down in the car's way
 
     def step(self, t_s: float, dt_s: float) -> None:
         want = max(self.target(t_s, self.s_m), 0.0)
@@ -426,7 +427,7 @@ class Sim:
         )
 
     def situation(self) -> Situation:
-        tracked = [c.tracked() for c in self.cars]
+        tracked = [c.tracked() for c in self.cars if self.t >= c.appears_at_s]
         # off its spans a scripted car has no lane; cars without spans are matched like the world model
         # (a standing car's match is kept: the same pose gives the same match)
         by_id: dict[str, TrackedObject] = {}

@@ -45,8 +45,8 @@ from .situation import Direction
 
 __all__ = [
     "ROAD_EDGE_SLACK_M", "InlinePathPlanner", "PathPlanner", "PlanReply", "PlanRequest", "PlannedLegs",
-    "blank_map", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of", "road_map", "solve",
-    "solve_steps", "standing_points",
+    "blank_map", "blocked_ahead", "footprint", "legs_of", "make_request", "obstacles_on", "planner_of",
+    "road_map", "solve", "solve_steps", "standing_points",
 ]  # fmt: skip
 
 ZONE_CELL_M = 0.2
@@ -132,6 +132,31 @@ def standing_points(ctx: BehaviourContext) -> np.ndarray:
     if cells is not None and len(cells):
         pts.append(np.asarray(cells, dtype=float)[:, :2])
     return np.vstack(pts) if pts else np.zeros((0, 2))
+
+
+def blocked_ahead(ctx: BehaviourContext, distance_m: float, step_m: float = 0.5) -> bool:
+    """Whether the next `distance_m` of the leg being driven is blocked by what stands now (Sec. 10's
+    replanning check): a pose there whose outline, grown by the tight margin, holds one of the
+    `standing_points`. What already touches us where we stand is no new blockade (a stray return, our
+    own shadow); what lies beyond `distance_m` is not looked at (the free-section check: it may be gone,
+    or be planned around, by the time we get there)."""
+    leg = ctx.legs[ctx.leg_index]
+    s = np.arange(ctx.leg_s_m, min(ctx.leg_s_m + distance_m, leg.end_s_m), step_m)
+    points = standing_points(ctx)
+    if s.size < 2 or not points.size:
+        return False
+    x, y, h = (np.interp(s, leg.s, a) for a in (leg.x, leg.y, leg.heading))
+    fp = footprint(ctx)
+    grow = ZONE_MARGIN_TIGHT_M
+    dx = points[None, :, 0] - x[:, None]
+    dy = points[None, :, 1] - y[:, None]
+    c, sn = np.cos(h)[:, None], np.sin(h)[:, None]
+    along = c * dx + sn * dy
+    across = -sn * dx + c * dy
+    half = 0.5 * fp.width_m + grow
+    inside = (along >= -fp.rear_m - grow) & (along <= fp.front_m + grow) & (np.abs(across) <= half)
+    inside[0] = False
+    return bool(inside.any())
 
 
 def _near(grid: GridMap, x: float, y: float) -> bool:

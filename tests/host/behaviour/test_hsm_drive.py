@@ -11,6 +11,8 @@ import math
 
 import pytest
 from hsm_sim import (
+    EGO_LENGTH_M,
+    EGO_REAR_OVERHANG_M,
     Script,
     Sim,
     W,
@@ -180,6 +182,37 @@ def test_blocked_road_kturn_and_replan(blocked) -> None:  # type: ignore[no-unty
     assert after.y_m == pytest.approx(2.0, abs=0.3) and math.cos(after.heading_rad) < -0.95
     assert sim.frames[-1].command.checkpoints_reached == (1, 2)
     assert W("4.2.2") in sim.behaviour.route.vertices
+
+
+def test_a_kturn_blocked_on_its_way_is_planned_again_from_where_the_car_stands(blocked) -> None:  # type: ignore[no-untyped-def]
+    """The blocked ring again, and a box set down where the K-turn's first leg ends just as the car sets
+    off on it: the turn is checked against what stands every cycle, so the car stops, plans the rest of
+    the turn from where it stands, and turns around without touching the box (without the check it
+    would stop before the box short of the leg's end, and stand there)."""
+    first, _ = blocked
+    start = first.first_time("DriveKTurnForward")
+    assert start is not None
+    leg = [f for f in first.frames if f.t_s >= start]
+    end = next(f for f, g in itertools.pairwise(leg) if not g.state.endswith("DriveKTurnForward"))
+    ahead = EGO_LENGTH_M - EGO_REAR_OVERHANG_M + 0.3  # just past the front bumper at the leg's end
+    box = parked(
+        "box", end.x_m + ahead * math.cos(end.heading_rad), end.y_m + ahead * math.sin(end.heading_rad),
+        end.heading_rad, 0.6, 0.6,
+    )  # fmt: skip
+    box.appears_at_s = start + 0.5
+    barrier = [
+        parked("barrier_e", 110.0, -2.0, 0.0, 3.0, 2.5),
+        parked("barrier_w", 110.0, 2.0, math.pi, 3.0, 2.5),
+    ]
+    sim = Sim(ring_network(), cars=[*barrier, box])
+    assert sim.run_until(lambda s: s.state == "MissionComplete", 240.0), sim.leaves()
+    assert sim.collisions == [] and sim.faults == []
+    leaves = sim.leaves()
+    i = leaves.index("DriveKTurnPlanning")
+    assert "DriveKTurnPlanning" in leaves[i + 1 :]  # planned again once the box stood in the way
+    replanned = [f for f in sim.frames if "replanning from here" in f.command.reason]
+    assert replanned and replanned[0].t_s >= box.appears_at_s
+    assert sim.frames[-1].command.checkpoints_reached == (1, 2)
 
 
 def test_an_unreachable_checkpoint_forgets_blockades() -> None:

@@ -7,7 +7,10 @@ Where the planner finds none, the geometric three-point turn of `manoeuvre.kturn
 lane on our left (forward, backward, forward), which does not look at the road's edges, and the reason
 is said. Each leg ends in a stop at `KTURN_SPEED_MPS` (the gear changes there); DriveKTurnForward and
 DriveKTurnBackward drive the legs before the last, DriveKTurnFinish the last; then Replan from the new
-pose. Entered from DriveOnLane at the start of the route's U-turn, or from Replan and GlobalRecovery
+pose. A planned turn is checked every cycle against what stands now (`path_planning.blocked_ahead`,
+the next `BLOCK_CHECK_M` of the leg): a blocked section stops the car and plans the rest of the turn
+again from where it stands (DriveKTurnPlanning), at most once per `rules.ZONE_REPLAN_STALL_S`.
+Entered from DriveOnLane at the start of the route's U-turn, or from Replan and GlobalRecovery
 when the road is blocked where we are.
 """
 
@@ -18,12 +21,14 @@ from ..context import BehaviourContext
 from ..hsm import State, Transition
 from ..lanes import adjacent_left_lane
 from ..manoeuvre import Leg, kturn_legs
-from ..path_planning import legs_of, planner_of
+from ..path_planning import blocked_ahead, legs_of, planner_of
 from .turnaround import turn_request, turn_target
 
 __all__ = ["drive_kturn_state"]
 
 _TICKET = "kturn_ticket"
+_BLOCKED_AT = "kturn_blocked_at_s"
+BLOCK_CHECK_M = 6.0  # a K-turn's legs are short: past the cusp's stop and the car's length
 
 
 def _geometric_legs(ctx: BehaviourContext) -> tuple[Leg, ...]:
@@ -42,6 +47,7 @@ def _kturn_entry(ctx: BehaviourContext) -> None:
     ctx.replan_why = "after the K-turn"
     ctx.legs = ()
     ctx.manoeuvre_data.pop(_TICKET, None)
+    ctx.manoeuvre_data.pop(_BLOCKED_AT, None)
     target = turn_target(ctx)
     request = None if target is None else turn_request(ctx, target)
     if request is None:
@@ -56,6 +62,33 @@ def _kturn_exit(ctx: BehaviourContext) -> None:
     ctx.end_legs()
     ctx.kturn_target = None
     ctx.manoeuvre_data.pop(_TICKET, None)
+    ctx.manoeuvre_data.pop(_BLOCKED_AT, None)
+
+
+def _planned_turn_blocked(ctx: BehaviourContext) -> bool:
+    """The planner's turn (not the geometric fallback, which has no target to plan to again) is blocked
+    ahead by what stands now, and it was not replanned within `rules.ZONE_REPLAN_STALL_S`."""
+    if not ctx.legs or ctx.kturn_target is None:
+        return False
+    last = ctx.manoeuvre_data.get(_BLOCKED_AT)
+    if isinstance(last, float) and ctx.t_s - last < rules.ZONE_REPLAN_STALL_S:
+        return False
+    return blocked_ahead(ctx, BLOCK_CHECK_M)
+
+
+def _replan_turn(ctx: BehaviourContext) -> None:
+    """The rest of the turn planned again from here; the car holds until it comes (DriveKTurnPlanning),
+    and turns the geometric way if none does."""
+    ctx.manoeuvre_data[_BLOCKED_AT] = ctx.t_s
+    target = ctx.kturn_target
+    ctx.legs, ctx.leg_index = (), 0
+    request = None if target is None else turn_request(ctx, target, begin_forward=False)
+    if request is None:
+        ctx.say("K-turn: blocked, and no plan can be asked from here: the three-point turn")
+        ctx.begin_legs(_geometric_legs(ctx))
+        return
+    ctx.manoeuvre_data[_TICKET] = planner_of(ctx).submit(request)
+    ctx.say("K-turn: the turn is blocked ahead by what stands there now: replanning from here")
 
 
 def _take_plan(ctx: BehaviourContext) -> None:
@@ -133,7 +166,9 @@ def _done_then_forward(ctx: BehaviourContext) -> bool:
 
 # where a leg before the last leads when it is done: to the state of the leg after it (the planner's
 # legs alternate at the cusps; a leg in the same direction again re-enters its state)
+_BLOCKED = Transition("DriveKTurnPlanning", _planned_turn_blocked, "blocked ahead: replan", _replan_turn)
 _LEG_DONE = (
+    _BLOCKED,
     Transition("DriveKTurnFinish", _done_then_last, "leg done, the last next", _next_leg),
     Transition("DriveKTurnBackward", _done_then_backward, "leg done, backward next", _next_leg),
     Transition("DriveKTurnForward", _done_then_forward, "leg done, forward next", _next_leg),
@@ -171,7 +206,7 @@ def drive_kturn_state() -> State[BehaviourContext]:
             State(
                 "DriveKTurnFinish",
                 doc="the last leg, into the lane",
-                transitions=(Transition("Replan", _last_leg_done, "turned around"),),
+                transitions=(_BLOCKED, Transition("Replan", _last_leg_done, "turned around")),
             ),
         ),
     )

@@ -73,8 +73,11 @@ def turn_map(ctx: BehaviourContext, start: Pose, goal: Pose) -> GridMap:
     return road_map(ctx, ctx.road_area, lo, hi)
 
 
-def turn_request(ctx: BehaviourContext, target: AdjacentLane) -> PlanRequest | None:
-    """The planner's request for the turn onto `target` from where we stand (None: no goal on it)."""
+def turn_request(
+    ctx: BehaviourContext, target: AdjacentLane, begin_forward: bool = True
+) -> PlanRequest | None:
+    """The planner's request for the turn onto `target` from where we stand (None: no goal on it); begun
+    driving forward (as we came along the lane) unless `begin_forward` is False (the rest of a turn)."""
     goal = turn_goal(ctx, target)
     if goal is None:
         return None
@@ -83,5 +86,8 @@ def turn_request(ctx: BehaviourContext, target: AdjacentLane) -> PlanRequest | N
     if math.hypot(goal[0] - start[0], goal[1] - start[1]) > MAP_HALF_M:
         return None
     grid = turn_map(ctx, start, goal)
-    # begun and ended driving forward: we came along the lane and go on along the other
-    return make_request(ctx, grid, goal, fine=True, reverse_factor=TURN_REVERSE_FACTOR, directions=(1.0, 1.0))
+    # ended driving forward: we go on along the other lane
+    begin = 1.0 if begin_forward else 0.0
+    return make_request(
+        ctx, grid, goal, fine=True, reverse_factor=TURN_REVERSE_FACTOR, directions=(begin, 1.0)
+    )

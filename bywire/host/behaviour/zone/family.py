@@ -16,12 +16,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from .. import rules
 from ..context import BehaviourContext
 from ..hsm import NoProgress, State, Transition
-from ..path_planning import ZONE_MARGIN_TIGHT_M, footprint, standing_points
+from ..path_planning import blocked_ahead
 from .approach import zone_approach_state
 from .enter import zone_enter_state
 from .leave import zone_leave_state
@@ -110,33 +108,14 @@ def _follow(ctx: BehaviourContext) -> None:
 
 def _replan_when_blocked(ctx: BehaviourContext, nav: ZoneNavigator) -> bool:
     """Every cycle the next `BLOCK_CHECK_M` of the leg being driven is checked against what stands now
-    (Sec. 10's replanning): a pose there whose outline, grown by the tight margin, holds an obstacle
-    point is a blocked section, and the way to the target is planned again from here at once (not
-    after stalling in front of it). Beyond that distance a change does not replan (the free-section
-    check: it may be gone, or be planned around, by the time we get there). At most once per
-    `ZONE_REPLAN_STALL_S`. True when a replan was asked for."""
+    (`path_planning.blocked_ahead`): a blocked section plans the way to the target again from here at
+    once (not after stalling in front of it). At most once per `ZONE_REPLAN_STALL_S`. True when a
+    replan was asked for."""
     if nav.target is None or (
         nav.blocked_replan_s is not None and ctx.t_s - nav.blocked_replan_s < rules.ZONE_REPLAN_STALL_S
     ):
         return False
-    leg = ctx.legs[ctx.leg_index]
-    s = np.arange(ctx.leg_s_m, min(ctx.leg_s_m + BLOCK_CHECK_M, leg.end_s_m), BLOCK_CHECK_STEP_M)
-    points = standing_points(ctx)
-    if s.size == 0 or not points.size:
-        return False
-    x, y, h = (np.interp(s, leg.s, a) for a in (leg.x, leg.y, leg.heading))
-    fp = footprint(ctx)
-    grow = ZONE_MARGIN_TIGHT_M
-    dx = points[None, :, 0] - x[:, None]
-    dy = points[None, :, 1] - y[:, None]
-    c, sn = np.cos(h)[:, None], np.sin(h)[:, None]
-    along = c * dx + sn * dy
-    across = -sn * dx + c * dy
-    half = 0.5 * fp.width_m + grow
-    inside = (along >= -fp.rear_m - grow) & (along <= fp.front_m + grow) & (np.abs(across) <= half)
-    # what already touches us where we stand is not a new blockade (a stray return, our own shadow)
-    inside[0] = False
-    if not inside.any():
+    if not blocked_ahead(ctx, BLOCK_CHECK_M, BLOCK_CHECK_STEP_M):
         return False
     nav.blocked_replan_s = ctx.t_s
     nav.request_legs(ctx, back_out=False)
