@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test bench lint typecheck imports clean safety-coverage mutation
+.PHONY: setup demo test bench lint typecheck imports docs clean safety-coverage mutation
 
 setup: $(VENV)/.installed
 
@@ -24,6 +24,7 @@ test: setup
 	$(MAKE) --no-print-directory typecheck
 	$(MAKE) --no-print-directory imports
 	$(MAKE) --no-print-directory safety-coverage
+	$(MAKE) --no-print-directory docs
 	$(BIN)/pytest -m "not slow and not hil" -n 2 --dist loadfile $(SAFETY_SPEC_IGNORE)
 	$(BIN)/pytest -m "hil and not slow"
 
@@ -39,6 +40,16 @@ imports: setup
 # mypy checks the package as Python imports it (pyproject.toml [tool.mypy]: strict on ecu and protocol).
 typecheck: setup
 	$(BIN)/mypy
+
+# The documentation site (mkdocs.yml): the guides of docs/, and the protocol table, the file schemas,
+# the calibration's limits and the API generated from the code (tools/docs_site), into build/docs;
+# any warning fails it. Offline: no web fonts, no plugin that fetches. The tools are installed here if
+# the venv predates them in the `test` extra. Material's notice about MkDocs 2 is not a warning of ours;
+# no --quiet, which hides from --strict the warnings it counts.
+docs: setup
+	@$(BIN)/python -c 'import mkdocs, material, mkdocstrings_handlers.python' 2>/dev/null \
+		|| $(BIN)/python -m pip install --quiet 'mkdocs>=1.6,<2' 'mkdocs-material>=9.5,<10' 'mkdocstrings[python]>=0.29'
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
 
 bench: setup
 	$(BIN)/python benchmarks/run.py
