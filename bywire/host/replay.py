@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bywire.clock import SimClock
 from bywire.host.config import HostConfig, parse_host_config
 from bywire.host.inputs import HostInputs, lane_map_file
@@ -170,6 +172,29 @@ def _equal(a: Any, b: Any, path: str, diffs: dict[str, float]) -> list[str]:
         if fa == fb or d <= DEFAULT_ABS_TOL + DEFAULT_REL_TOL * max(abs(fa), abs(fb)):
             return []
         return [f"{path}: recorded {fa!r}, replayed {fb!r}"]
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        # a perception frame's arrays (a revolution's points, the grid's obstacle cells): same shape,
+        # and elementwise within the tolerance
+        xa, xb = np.asarray(a), np.asarray(b)
+        if xa.shape != xb.shape:
+            return [f"{path}: recorded shape {xa.shape}, replayed {xb.shape}"]
+        if xa.size == 0:
+            return []
+        if not (np.issubdtype(xa.dtype, np.number) and np.issubdtype(xb.dtype, np.number)):
+            return [] if np.array_equal(xa, xb) else [f"{path}: recorded and replayed arrays differ"]
+        fa, fb = xa.astype(np.float64), xb.astype(np.float64)
+        both_nan = np.isnan(fa) & np.isnan(fb)
+        d = np.where(both_nan, 0.0, np.abs(fa - fb))
+        worst = float(np.nanmax(d)) if not np.isnan(d).all() else math.nan
+        if not math.isnan(worst):
+            diffs[path] = max(diffs.get(path, 0.0), worst)
+        bound = DEFAULT_ABS_TOL + DEFAULT_REL_TOL * np.maximum(np.abs(fa), np.abs(fb))
+        bad = ~(both_nan | (d <= bound))
+        if not bad.any():
+            return []
+        i = int(np.flatnonzero(bad.ravel())[0])
+        return [f"{path}: {int(bad.sum())} elements differ, first [{i}]: recorded {fa.ravel()[i]!r}, "
+                f"replayed {fb.ravel()[i]!r}"]  # fmt: skip
     if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
         out: list[str] = []
         for f in dataclasses.fields(a):

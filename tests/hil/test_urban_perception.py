@@ -145,3 +145,22 @@ def test_every_urban_scenario_passes_on_lidar(name: str) -> None:
         pytest.skip("the DARPA sample RNDF is not in the shared data (set BYWIRE_SHARED_DATA)")
     doc = run(name, "lidar")
     assert doc["verdict"] == "pass", failed(doc)
+
+
+def test_a_lidar_recording_replays_exactly(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A LIDAR run's recording holds every revolution, and `bywire log replay --check` reruns the
+    perception (grid, segmentation, tracker, lane markings), the behaviour and the control on it to the
+    same outputs, obstacle cells and all."""
+    import dataclasses
+
+    from bywire.hil.host_inputs import recorded_inputs
+    from bywire.host.replay import replay
+
+    rec = tmp_path / "lidar.mcap"
+    scenario = dataclasses.replace(with_perception(load_scenario("four_way_stop_1"), "lidar"), duration_s=6.0)
+    run_sil(scenario, record=rec)
+    result = replay(rec, inputs_for=recorded_inputs)
+    assert result.matches, result.to_json()["topics"]
+    assert {"perception", "lane_offset", "behaviour", "control"} <= set(result.modules)
+    cells = result.topics["/perception/obstacles"]
+    assert cells.compared >= 20 and cells.mismatched == 0

@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bywire.hil.scenario import load_scenario
@@ -122,3 +123,18 @@ def test_merging_keeps_what_a_crashed_part_holds(recording: Path, tmp_path: Path
     assert info["complete"] is True
     assert info["topics"]["/can/vehicle"]["count"] > 5000
     assert 0 < info["topics"]["/control/request"]["count"] < 550
+
+
+def test_arrays_are_compared_elementwise_within_the_tolerance() -> None:
+    """A perception frame's arrays: equal within the tolerance, or named with the first difference."""
+    from bywire.host.replay import _equal
+
+    diffs: dict[str, float] = {}
+    a = np.array([[1.0, 2.0], [3.0, np.nan]], dtype=np.float32)
+    assert _equal(a, a.copy(), "xy_m", diffs) == [] and diffs["xy_m"] == 0.0
+    b = a.copy()
+    b[1, 0] += 0.5
+    (line,) = _equal(a, b, "xy_m", diffs)
+    assert "1 elements differ" in line and "[2]" in line and diffs["xy_m"] == 0.5
+    assert "shape" in _equal(a, a[:1], "xy_m", diffs)[0]
+    assert _equal(np.zeros(0), np.zeros(0), "e", diffs) == []
