@@ -39,7 +39,8 @@ GAP_FACTOR = 3.0  # an interval longer than this many periods is a gap
 
 
 def add_arguments(log_subparsers: Any) -> None:
-    """Add `info`, `plot` and `replay` to the subparsers of `bywire log` (created with dest="log_command")."""
+    """Add `info`, `plot`, `export`, `scene` and `replay` to the subparsers of `bywire log` (created with
+    dest="log_command")."""
     info = log_subparsers.add_parser(
         "info", help="topics of a recording: message counts, rates, gaps; whether it was closed cleanly"
     )
@@ -64,6 +65,15 @@ def add_arguments(log_subparsers: Any) -> None:
     export.add_argument("file", type=Path, help="an MCAP recording")
     export.add_argument(
         "-o", "--output", type=Path, required=True, metavar="OUT", help="the log file to write"
+    )
+    scene = log_subparsers.add_parser(
+        "scene",
+        help="the urban host's world of a recording as a Foxglove 3D scene: obstacle cells, tracks, our "
+        "car, its path, the LIDAR's points (needs bywire[live])",
+    )
+    scene.add_argument("file", type=Path, help="an MCAP recording of an urban run")
+    scene.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="OUT", help="the MCAP file to write"
     )
     rep = log_subparsers.add_parser(
         "replay", help="feed a recording back through the host's computing modules on simulated time"
@@ -348,6 +358,44 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_scene(args: argparse.Namespace) -> int:
+    try:
+        import foxglove
+        import foxglove.channels
+
+        from bywire.host.modules.scene_view import SOURCE_TOPICS, SceneConverter
+    except ImportError as exc:
+        print(f"error: log scene needs foxglove-sdk: pip install 'bywire[live]' ({exc})", file=sys.stderr)
+        return 2
+    if args.output.resolve() == args.file.resolve():
+        raise LogError(args.output, "the scene would overwrite the recording it is made from")
+    converter = SceneConverter()
+    context = foxglove.Context()
+    channels: dict[str, Any] = {}
+    counts: dict[str, int] = {}
+    try:
+        writer = foxglove.open_mcap(args.output, allow_overwrite=True, context=context)
+    except Exception as exc:  # the SDK's own error types: a folder that is not there, no permission
+        raise LogError(args.output, f"cannot write: {exc}") from None
+    with writer:
+        for entry in read_objects(args.file, topics=SOURCE_TOPICS):
+            for topic, msg in converter.convert(entry.topic, entry.obj):
+                channel = channels.get(topic)
+                if channel is None:
+                    typed = getattr(foxglove.channels, type(msg).__name__ + "Channel")
+                    channel = channels[topic] = typed(topic, context=context)
+                channel.log(msg, log_time=entry.log_time_ns)
+                counts[topic] = counts.get(topic, 0) + 1
+    if not counts:
+        print(
+            f"scene: {args.file} holds none of {', '.join(SOURCE_TOPICS)} (not an urban run)", file=sys.stderr
+        )
+        return 1
+    per_topic = ", ".join(f"{t} {n}" for t, n in sorted(counts.items()))
+    print(f"scene: {per_topic} -> {args.output} (open it in Foxglove beside the recording, 3D panel)")
+    return 0
+
+
 def _cmd_replay(args: argparse.Namespace, inputs_for: Any = None) -> int:
     from bywire.host.replay import ReplayError, car_run_inputs, replay
 
@@ -384,6 +432,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "info": _cmd_info,
     "plot": _cmd_plot,
     "export": _cmd_export,
+    "scene": _cmd_scene,
     "replay": _cmd_replay,
 }
 

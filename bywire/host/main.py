@@ -99,6 +99,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def scene_tap(live: Any) -> Any:
+    """A store tap that shows the urban host's world in the live view's 3D panel (`modules.scene_view`):
+    one converter, called under a lock (taps run in the publishers' threads). It costs the publishing
+    module the conversion (a few ms per revolution and grid); the live view is off unless asked for."""
+    import threading
+
+    from bywire.host.modules.scene_view import SOURCE_TOPICS, SceneConverter
+    from bywire.host.runtime.log_schema import object_time_ns
+
+    converter = SceneConverter()
+    lock = threading.Lock()
+
+    def tap(topic: str, obj: Any) -> None:
+        if topic not in SOURCE_TOPICS:
+            return
+        with lock:
+            out = converter.convert(topic, obj)
+        for scene_topic, msg in out:
+            live.publish_message(scene_topic, msg, object_time_ns(obj, live.url, topic))
+
+    return tap
+
+
 def car_inputs(args: argparse.Namespace) -> HostInputs:
     """The mission a car's command line gives (see the module docstring)."""
     if (args.rndf is None) != (args.mdf is None):
@@ -229,6 +252,7 @@ def run_host(
 
             live = LiveView(port)
             agent.store.add_tap(live.publish)
+            agent.store.add_tap(scene_tap(live))  # the urban host's topics as a 3D scene
             print(f"host: live view for Foxglove on {live.url}", flush=True)
         if args.record is not None:
             from bywire.host.runtime.mcap_recorder import McapRecorder

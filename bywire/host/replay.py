@@ -182,19 +182,19 @@ def _equal(a: Any, b: Any, path: str, diffs: dict[str, float]) -> list[str]:
             return []
         if not (np.issubdtype(xa.dtype, np.number) and np.issubdtype(xb.dtype, np.number)):
             return [] if np.array_equal(xa, xb) else [f"{path}: recorded and replayed arrays differ"]
-        fa, fb = xa.astype(np.float64), xb.astype(np.float64)
-        both_nan = np.isnan(fa) & np.isnan(fb)
-        d = np.where(both_nan, 0.0, np.abs(fa - fb))
-        worst = float(np.nanmax(d)) if not np.isnan(d).all() else math.nan
+        va, vb = xa.astype(np.float64), xb.astype(np.float64)
+        both_nan = np.isnan(va) & np.isnan(vb)
+        gap = np.where(both_nan, 0.0, np.abs(va - vb))
+        worst = float(np.nanmax(gap)) if not np.isnan(gap).all() else math.nan
         if not math.isnan(worst):
             diffs[path] = max(diffs.get(path, 0.0), worst)
-        bound = DEFAULT_ABS_TOL + DEFAULT_REL_TOL * np.maximum(np.abs(fa), np.abs(fb))
-        bad = ~(both_nan | (d <= bound))
+        bound = DEFAULT_ABS_TOL + DEFAULT_REL_TOL * np.maximum(np.abs(va), np.abs(vb))
+        bad = ~(both_nan | (gap <= bound))
         if not bad.any():
             return []
         i = int(np.flatnonzero(bad.ravel())[0])
-        return [f"{path}: {int(bad.sum())} elements differ, first [{i}]: recorded {fa.ravel()[i]!r}, "
-                f"replayed {fb.ravel()[i]!r}"]  # fmt: skip
+        return [f"{path}: {int(bad.sum())} elements differ, first [{i}]: recorded {va.ravel()[i]!r}, "
+                f"replayed {vb.ravel()[i]!r}"]  # fmt: skip
     if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
         out: list[str] = []
         for f in dataclasses.fields(a):

@@ -164,3 +164,23 @@ def test_a_lidar_recording_replays_exactly(tmp_path) -> None:  # type: ignore[no
     assert {"perception", "lane_offset", "behaviour", "control"} <= set(result.modules)
     cells = result.topics["/perception/obstacles"]
     assert cells.compared >= 20 and cells.mismatched == 0
+    # and the same recording as a Foxglove 3D scene (`bywire log scene`)
+    import argparse
+
+    from mcap.reader import make_reader
+
+    from bywire.host.log_cli import main as log_main
+
+    out = tmp_path / "scene.mcap"
+    assert log_main(argparse.Namespace(log_command="scene", file=rec, output=out)) == 0
+    with out.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    assert schemas == {
+        "/scene/tf": "foxglove.FrameTransform", "/scene/ego": "foxglove.SceneUpdate",
+        "/scene/obstacles": "foxglove.SceneUpdate", "/scene/tracks": "foxglove.SceneUpdate",
+        "/scene/path": "foxglove.SceneUpdate", "/scene/scan": "foxglove.PointCloud",
+    }  # fmt: skip
+    counts = {summary.channels[k].topic: n for k, n in summary.statistics.channel_message_counts.items()}
+    assert counts["/scene/scan"] == counts["/scene/obstacles"] >= 20

@@ -6,6 +6,8 @@ shows every topic live (open `view.url` in Foxglove as a "Foxglove WebSocket" co
 
 Messages and schemas are exactly those of the MCAP recorder (`log_schema.encode_object`,
 `log_schema.schema_bytes`: one encoder), so a layout made on a recording works live and vice versa.
+`publish_message` adds messages of Foxglove's own schemas (the urban host's 3D scene,
+`host.modules.scene_view`) on the SDK's typed channels.
 Times are the objects' `t_s` in ns (simulated time in SIL). The server runs on its own foxglove
 Context, so several views (or tests) do not share channels, and is bound to loopback by default:
 the protocol has no authentication.
@@ -18,6 +20,7 @@ from typing import Any
 
 import can
 import foxglove
+import foxglove.channels
 from foxglove import Channel, Context, Schema
 
 from bywire.host.runtime.can_frame import CAN_TOPIC_PREFIX, CanFrame
@@ -60,6 +63,26 @@ class LiveView:
         """Publish a CAN frame on `/can/<bus>` as the recorder records it."""
         frame = CanFrame.from_message(msg, t_s)
         self._publish(CAN_TOPIC_PREFIX + bus, frame, time_ns(frame.timestamp))
+
+    def publish_message(self, topic: str, msg: Any, log_time_ns: int) -> None:
+        """Publish a message of Foxglove's own schemas (`foxglove.messages.SceneUpdate`, `PointCloud`,
+        `FrameTransform`, ...) on `topic`, on the SDK's typed channel for its type (a 3D scene)."""
+        with self._lock:
+            if self._closed:
+                return
+            known = self._channels.get(topic)
+            if known is None:
+                typed = getattr(foxglove.channels, type(msg).__name__ + "Channel", None)
+                if typed is None:
+                    raise LogError(self.url, f"topic {topic!r}: {type(msg).__name__} is no Foxglove schema")
+                known = (typed(topic, context=self._context), type(msg))
+                self._channels[topic] = known
+            elif known[1] is not type(msg):
+                raise LogError(
+                    self.url, f"topic {topic!r} carries {known[1].__name__}, not {type(msg).__name__}"
+                )
+            channel = known[0]
+        channel.log(msg, log_time=log_time_ns)
 
     def _publish(self, topic: str, obj: object, log_time_ns: int) -> None:
         try:
