@@ -7,6 +7,12 @@ without reading the code: the supervisor restarts a failed module's dependants i
 and refuses a publication on a topic the module did not declare (a wiring mistake would otherwise
 show up as a mysteriously stale topic elsewhere).
 
+A module may also sample topics (`sampled`): read their newest object when it runs, without being
+part of their data flow. A sampled topic does not place the module after its producer in the chain,
+never holds its release while the producer computes, and does not make the module a dependant that
+is restarted with the producer: a sender on its own rhythm (the V2X link's CAM) takes what a
+controller said last and is never delayed by it.
+
 A module is run either periodically (`period_s`) or on a trigger topic (every new object on it),
 and every release must complete within `deadline_s`. The `FailurePolicy` says what the supervisor
 does when it does not: restart (with back-off, then escalate), degrade (a speed limit for the
@@ -78,6 +84,8 @@ class ModuleSpec:
     name: str
     inputs: tuple[str, ...] = ()
     outputs: tuple[str, ...] = ()
+    # Read by their newest object only (`ModuleContext.latest`), outside the data flow (module docstring).
+    sampled: tuple[str, ...] = ()
     period_s: float | None = None
     trigger: str | None = None  # run on every new object on this input topic instead of periodically
     deadline_s: float = 0.010
@@ -97,6 +105,9 @@ class ModuleSpec:
             raise ValueError(f"module {self.name}: period_s must be > 0, got {self.period_s}")
         if self.trigger is not None and self.trigger not in self.inputs:
             raise ValueError(f"module {self.name}: trigger {self.trigger!r} must be one of its inputs")
+        both = sorted(set(self.sampled) & set(self.inputs))
+        if both:
+            raise ValueError(f"module {self.name}: {both} are both inputs and sampled; name each once")
         if not (math.isfinite(self.deadline_s) and self.deadline_s > 0):
             raise ValueError(f"module {self.name}: deadline_s must be > 0, got {self.deadline_s}")
 
@@ -139,7 +150,9 @@ class ModuleContext:
         self.as_of = self.store.seq
 
     def latest(self, topic: str) -> Any | None:
-        self._check_input(topic)
+        """The newest object on an input or sampled topic, as of the release."""
+        if topic not in self.spec.sampled:
+            self._check_input(topic)
         return self.store.latest(topic, self.as_of)
 
     def at_or_before(self, topic: str, t_s: float) -> Any | None:

@@ -257,7 +257,7 @@ class ProcessWorker(WorkerState):
             in_ep = new_endpoint(f"{self.spec.name}-{self.generation}-in")
             out_ep = new_endpoint(f"{self.spec.name}-{self.generation}-out")
             self._pub = TopicPublisher(in_ep)
-            self._pub.attach(self._store, self.spec.inputs)
+            self._pub.attach(self._store, self.spec.inputs + self.spec.sampled)
             self._sub = TopicSubscriber(out_ep, self._store)
             ctx = mp.get_context("spawn")
             self.process = ctx.Process(
@@ -320,7 +320,7 @@ class ProcessWorker(WorkerState):
             self._pub.send(self._ctl_topic, WorkerSignal(0.0, "hello"))
         elif sig.kind == "started" and not self._started:
             self._started = True
-            for topic in self.spec.inputs:
+            for topic in self.spec.inputs + self.spec.sampled:
                 obj = self._store.latest(topic)
                 if obj is not None:
                     self._pub.send(topic, obj)
