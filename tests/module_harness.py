@@ -13,7 +13,9 @@ from bywire.host.runtime.store import ObjectStore
 class Harness:
     def __init__(self, kind: str, module: Any, params: dict[str, Any] | None = None) -> None:
         k = KINDS[kind]
-        self.spec = ModuleSpec(kind, k.inputs, k.outputs, period_s=k.period_s, deadline_s=k.deadline_s)
+        self.spec = ModuleSpec(
+            kind, k.inputs, k.outputs, k.sampled, period_s=k.period_s, deadline_s=k.deadline_s
+        )
         self.store = ObjectStore()
         self.module = module
         self.ctx = ModuleContext(self.spec, self.store, dict(params or {}), 1)

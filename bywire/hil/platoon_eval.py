@@ -264,7 +264,7 @@ def evaluate_platoon(
     m["v2v_rejected"] = dict(gcdc.get("v2v_rejected", {}))
     if "fuzz_sent" in world:
         m["fuzz_sent"] = world["fuzz_sent"]
-    for k in ("v2v_received", "v2v_accepted", "cam_sent", "nmea_dropped", "frozen_fixes"):
+    for k in ("v2v_received", "v2v_accepted", "cam_sent", "iclcm_sent", "nmea_dropped", "frozen_fixes"):
         if k in gcdc:
             m[k] = gcdc[k]
     per: dict[str, Any] = {}

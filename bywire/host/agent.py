@@ -170,8 +170,8 @@ class HostAgent:
 
     def gcdc_summary(self) -> dict[str, Any]:
         """What the cooperative modules counted: V2V received / accepted / rejected by reason,
-        our CAMs sent, the pose server's dropped sentences and frozen fixes. Empty without them."""
-        from bywire.host.modules.gcdc_messages import POSE, V2V_RECEIVED, V2V_SENT
+        our CAMs and iCLCMs sent, the pose server's dropped sentences and frozen fixes. Empty without them."""
+        from bywire.host.modules.gcdc_messages import POSE, V2V_ICLCM_SENT, V2V_RECEIVED, V2V_SENT
 
         out: dict[str, Any] = {}
         batch = self.store.latest(V2V_RECEIVED)
@@ -182,6 +182,9 @@ class HostAgent:
         cam = self.store.latest(V2V_SENT)
         if cam is not None:
             out["cam_sent"] = cam.count
+        iclcm = self.store.latest(V2V_ICLCM_SENT)
+        if iclcm is not None:
+            out["iclcm_sent"] = iclcm.count
         pose = self.store.latest(POSE)
         if pose is not None:
             out["nmea_dropped"] = pose.nmea_dropped

@@ -186,6 +186,7 @@ def _module(r: _Reader) -> ModuleConfig:
         spec = ModuleSpec(
             name=name,
             inputs=kind.inputs,
+            sampled=kind.sampled,
             outputs=kind.outputs,
             period_s=period_ms / 1e3,
             deadline_s=deadline_ms / 1e3,

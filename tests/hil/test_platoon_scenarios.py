@@ -7,6 +7,7 @@ runs every shipped scenario, the five platoon ones included, and judges its chec
 - The V2V flood changes nothing: the same run with and without the fuzzer gives the same trajectory.
 - `--leader-profile`: a real leader's speed replayed (OpenACC AstaZero), skipped where the data is absent.
 - A heat recording replays exactly (`bywire log replay --check`).
+- A platoon recording holds every car's iCLCM, and ours carries the platoon's request of that release.
 - The evaluation's definitions on hand-made traces (limit violations, speed-limit excess).
 Full-length scenarios with every check run under `-m slow`.
 """
@@ -27,7 +28,9 @@ from bywire.hil.run import run_scenario
 from bywire.hil.scenario import Scenario, load_scenario
 from bywire.hil.sil import run_sil
 from bywire.hil.world.spec import FuzzSpec, SinusoidSpec, VehicleSpec
+from bywire.host.modules.gcdc_messages import IclcmSent, PlatoonStatus, V2vBatch, V2vCooperative
 from bywire.host.replay import replay
+from bywire.host.runtime.mcap_reader import read_objects
 from bywire.host.trace import CONTROLLERS
 
 PLATOON_SCENARIOS = ("gcdc_heat", "platoon_sinusoid", "platoon_braking", "platoon_bridge_outage", "v2v_fuzz")
@@ -135,6 +138,37 @@ def test_a_heat_recording_replays_exactly(tmp_path: Path) -> None:
     result = replay(rec, inputs_for=recorded_inputs)
     assert result.matches, result.to_json()
     assert {"/ego/pose", "/world/leads", "/control/request", "/platoon/status"} <= set(result.topics)
+
+
+def test_a_platoon_recording_holds_every_cars_iclcm_and_ours_is_the_platoons(tmp_path: Path) -> None:
+    sc = dataclasses.replace(load_scenario("platoon_braking"), duration_s=3.0)
+    rec = tmp_path / "braking.mcap"
+    run_sil(sc, record=rec)
+    received: dict[int, list[V2vCooperative]] = {}
+    sent: list[IclcmSent] = []
+    platoon: list[PlatoonStatus] = []
+    for e in read_objects(rec, ("/v2v/received", "/v2v/iclcm_sent", "/platoon/status")):
+        if isinstance(e.obj, V2vBatch):
+            for c in e.obj.cooperative:
+                received.setdefault(c.station_id, []).append(c)
+        elif isinstance(e.obj, IclcmSent):
+            sent.append(e.obj)
+        else:
+            assert isinstance(e.obj, PlatoonStatus)
+            platoon.append(e.obj)
+    assert sorted(received) == [101, 102, 104, 105]  # every other car, decoded into its type
+    assert all(len(cs) >= 25 for cs in received.values())  # 10 Hz for 3 s
+    assert {c.controller_type for c in received[102]} == {"cacc"} and received[101][0].controller_type == "cc"
+    ours = [s.iclcm for s in sent if s.sent and s.iclcm is not None]
+    assert len(ours) >= 29 and sent[-1].count == len(ours)
+    driving = [c for c in ours if c.t_gen_s > 1.0]  # engaged at 0.5 s
+    assert driving and {c.controller_type for c in driving} == {"cacc"}
+    for c in driving:  # the platoon's request at that release (it runs just before us in the chain)
+        status = max((p for p in platoon if p.t_s <= c.t_gen_s + 1e-9), key=lambda p: p.t_s)
+        assert c.target_accel_mps2 == status.accel_cmd_mps2
+        assert c.time_headway_s == 0.6 and c.cruise_speed_mps == status.v_des_mps
+        assert c.mio_station_id == 102 and 15.0 < c.mio_range_m < 30.0  # cacc2, 0.6 s + 8 m ahead
+        assert c.platoon_id == 1
 
 
 def test_evaluation_definitions_on_hand_made_traces() -> None:

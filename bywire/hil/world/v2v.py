@@ -8,12 +8,26 @@ Per communicating vehicle (`V2vSenderSpec`), at `rate_hz` on epochs ``k / rate +
 by station id, as real senders are not synchronised): its state at the epoch, stamped with the epoch's
 wall time (`unix_time`, GNSS time in the GCDC), position with white noise per axis (`position_noise_m`),
 speed with `speed_noise_mps`, delivered `latency_s` later; its CAM carries the low-frequency container
-at the ETSI rate (`etsi_cam.LowFrequencyClock`). The bad data of seed 003 (Sec. IV-B, VI):
+at the ETSI rate (`etsi_cam.LowFrequencyClock`). The simulated cars are GCDC participants: at the GCDC
+profile's fixed rate, not the ETSI generation rules (host/modules/io/v2v.py), and each sends beside its
+CAM the GCDC 2016 iCLCM (`protocol.v2x.iclcm`), same stamp and latency, from its driver model:
+
+- controllerType: cacc / acc for those drivers, cc for a scripted speed, manual for a human (IDM);
+- targetLongitudinalAcceleration: the driver's command u (unavailable for a human, whose command is no
+  controller's request); timeHeadway and cruiseSpeed: the driver's time gap and set speed (acc, cacc);
+- the most important object: the car ahead on its lane (its station id, 0 if it does not communicate),
+  gap and gap rate; bearing and lane unavailable;
+- platoonID: 1 (A) on our car's starting lane, 2 (B) on another; the rear axle at REAR_AXLE_SHARE of the
+  length behind the front bumper (the Passat's 3.67 m of 4.77 m; no car spec has one).
+
+No random draw is spent on an iCLCM: the CAMs' noise is the same with or without them.
+
+The bad data of seed 003 (Sec. IV-B, VI):
 
 - frozen (a GPS outage under a bridge, seed 003 Fig. 6, Sec. VI): the broadcast position stays where it
   was when the interval began; speed, heading and acceleration go on (they come from the car's odometry
-  and gyro), and the generation time advances;
-- silent: nothing is sent (seed 003 VI: "did not send anything at all");
+  and gyro), and the generation time advances; the iCLCM goes on unchanged;
+- silent: nothing is sent, neither CAM nor iCLCM (seed 003 VI: "did not send anything at all");
 - late: `extra_s` more latency (outdated data), the generation time still the epoch's.
 
 Road side: a traffic light's RSU sends its signal group's phase and time to change in a SPATEM at 10 Hz and
@@ -35,17 +49,25 @@ from collections.abc import Callable
 import numpy as np
 
 from bywire.hil.world.spec import FuzzSpec, RoadsideSpec, WorldSpec
-from bywire.hil.world.traffic import TrafficVehicle, World
+from bywire.hil.world.traffic import EGO, TrafficVehicle, World
 from bywire.protocol.v2x.codec import SpeedLimit, TrafficLightPhase, VehicleState
 from bywire.protocol.v2x.dsrc import IntersectionMap, RoadMap, SignalGroupState, SignalPhases, StopLine
 from bywire.protocol.v2x.etsi_cam import LowFrequencyClock
 from bywire.protocol.v2x.fuzz import V2xFuzzer
+from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState
 from bywire.protocol.v2x.receiver import GeoPoint
 from bywire.protocol.v2x.wire import encode
 
 LIGHT_RATE_HZ = 10.0
 MAP_RATE_HZ = 1.0
 FUZZ_OFFSET_M = 700.0
+REAR_AXLE_SHARE = 3.67 / 4.77  # front bumper to rear axle over the length: the Passat B6's
+CONTROLLER_OF_DRIVER = {
+    "cacc": ControllerType.CACC,
+    "acc": ControllerType.ACC,
+    "scripted": ControllerType.CC,
+    "idm": ControllerType.MANUAL,
+}
 
 
 def _phase_at(rs: RoadsideSpec, t_s: float) -> tuple[str, float | None]:
@@ -140,6 +162,40 @@ class V2vBroadcaster:
             width_m=v.spec.width_m,
         )
 
+    def _cooperative_state(self, v: TrafficVehicle, generation_time_s: float) -> CooperativeState:
+        """The iCLCM a simulated car sends beside its CAM (module docstring)."""
+        assert v.spec.v2v is not None
+        w = self.world
+        d = v.spec.driver
+        controller = CONTROLLER_OF_DRIVER[d.kind]
+        follows = controller in (ControllerType.ACC, ControllerType.CACC)
+        manual = controller is ControllerType.MANUAL
+        mio_id, mio_range, mio_rate = 0, None, None
+        pred = w.pred.get(v.index)
+        if pred is not None:
+            if pred == EGO:
+                mio_id, mio_speed = self.spec.ego.station_id, w.ego.speed_mps
+            else:
+                lead = w.vehicles[pred - 1]
+                mio_id = lead.spec.v2v.station_id if lead.spec.v2v is not None else 0
+                mio_speed = lead.v_mps
+            gap = w.gap[v.index]
+            mio_range = gap if 0.0 <= gap <= 655.34 else None
+            mio_rate = mio_speed - v.v_mps
+        return CooperativeState(
+            station_id=v.spec.v2v.station_id,
+            generation_time_s=generation_time_s,
+            controller_type=controller,
+            target_accel_mps2=None if manual else min(max(v.u_mps2, -10.0), 10.0),
+            time_headway_s=d.headway_s if follows and d.headway_s <= 36.0 else None,
+            cruise_speed_mps=d.v_set_mps if follows and d.v_set_mps <= 50.0 else None,
+            rear_axle_m=min(REAR_AXLE_SHARE * v.spec.length_m, 40.95),
+            mio_station_id=mio_id,
+            mio_range_m=mio_range,
+            mio_range_rate_mps=mio_rate,
+            platoon_id=1 if v.lane == self.spec.ego.lane else 2,
+        )
+
     def _place(self, rs: RoadsideSpec) -> tuple[float, float, float]:
         """(lat, lon, true heading counter-clockwise from east) of a road-side object's place on the road."""
         road = self.world.road
@@ -186,6 +242,7 @@ class V2vBroadcaster:
                         state.generation_time_s
                     )
                     self._push(nxt + latency, encode(state, low_frequency=lf))
+                    self._push(nxt + latency, encode(self._cooperative_state(v, state.generation_time_s)))
                 nxt += period
             self._next[v.index] = nxt
         while self.spec.roadside and self._next_map <= t_s:

@@ -153,6 +153,7 @@ class ModuleKind:
     needs_resources: bool = True
     doc: str = ""
     always_release: bool = False  # see ModuleSpec.always_release
+    sampled: tuple[str, ...] = ()  # see ModuleSpec.sampled
 
 
 def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -247,10 +248,41 @@ def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
 
 
 def _v2v_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.io.v2v import V2vTxIo
+    from bywire.host.modules.io.v2v import PASSAT_REAR_AXLE_M, TX_PROFILES, V2vTxIo
 
     assert res is not None
-    return V2vTxIo(res.v2x, res.unix_time_fn(), res.local_frame(), _station_id(params, res))
+    p = dict(params)
+    p.pop("station_id", None)
+    profile = p.pop("profile", "etsi")
+    iclcm = p.pop("iclcm", None)
+    platoon_id = p.pop("platoon_id", 0)
+    rear_axle_m = p.pop("rear_axle_m", PASSAT_REAR_AXLE_M)
+    if p:
+        raise ValueError(
+            f"v2v_tx: unknown params {sorted(p)} (known: station_id, profile, iclcm, platoon_id, rear_axle_m)"
+        )
+    if profile not in TX_PROFILES:
+        raise ValueError(f"v2v_tx: params.profile must be one of {', '.join(TX_PROFILES)}, got {profile!r}")
+    if iclcm is not None and not isinstance(iclcm, bool):
+        raise ValueError(f"v2v_tx: params.iclcm must be true or false, got {iclcm!r}")
+    if isinstance(platoon_id, bool) or not isinstance(platoon_id, int) or not 0 <= platoon_id <= 255:
+        raise ValueError(f"v2v_tx: params.platoon_id must be an integer in 0..255, got {platoon_id!r}")
+    if (
+        isinstance(rear_axle_m, bool)
+        or not isinstance(rear_axle_m, int | float)
+        or not 0 <= rear_axle_m <= 40.95
+    ):
+        raise ValueError(f"v2v_tx: params.rear_axle_m must be a number in 0..40.95 m, got {rear_axle_m!r}")
+    return V2vTxIo(
+        res.v2x,
+        res.unix_time_fn(),
+        res.local_frame(),
+        _station_id(params, res),
+        profile=profile,
+        iclcm=iclcm,
+        platoon_id=platoon_id,
+        rear_axle_m=float(rear_axle_m),
+    )
 
 
 def _pose(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -400,7 +432,17 @@ KINDS: dict[str, ModuleKind] = {
             "NMEA + odometry -> pose (seed 003 II-h)",
         ),
         ModuleKind("v2v_rx", (g.POSE,), (g.V2V_RECEIVED,), 0.02, 0.010, _v2v_rx, doc="hardened V2V receiver"),
-        ModuleKind("v2v_tx", (g.POSE,), (g.V2V_SENT,), 0.1, 0.010, _v2v_tx, doc="our CAM at 10-25 Hz"),
+        ModuleKind(
+            "v2v_tx",
+            (g.POSE,),
+            (g.V2V_SENT, g.V2V_ICLCM_SENT),
+            0.1,
+            0.010,
+            _v2v_tx,
+            doc="our CAM (EN 302 637-2 rules, or the GCDC profile's 10-25 Hz with the iCLCM)",
+            # what the iCLCM says, read as it stands: never waited for (io/v2v.py)
+            sampled=(g.PLATOON, g.WORLD_LEADS, m.ECU_STATUS),
+        ),
         ModuleKind(
             "world_model",
             (g.V2V_RECEIVED, g.POSE, m.RADAR),

@@ -8,6 +8,7 @@ V2V generation times arrive as UNIX seconds; the receiving module converts them 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from bywire.host.runtime.log_schema import register_type
@@ -18,6 +19,7 @@ EGO_MOTION = "/ego/motion"
 POSE = "/ego/pose"
 V2V_RECEIVED = "/v2v/received"
 V2V_SENT = "/v2v/sent"
+V2V_ICLCM_SENT = "/v2v/iclcm_sent"
 WORLD_LEADS = "/world/leads"
 PLATOON = "/platoon/status"
 
@@ -121,6 +123,29 @@ class ReasonCount:
 
 @register_type
 @dataclass(frozen=True)
+class V2vCooperative:
+    """One vehicle's GCDC 2016 iCLCM (`protocol.v2x.iclcm.CooperativeState`) on the runtime clock: what its
+    cooperative controller says beyond its CAM. nan: unavailable. The merge and intersection objects of
+    the GCDC 2016 scenarios, which our platoon does not drive, are not carried."""
+
+    station_id: int
+    t_gen_s: float  # generation time on the runtime clock
+    t_rx_s: float  # nan: our own
+    controller_type: str  # manual, cc, acc, cacc
+    target_accel_mps2: float  # what its controller requests (a CACC follower's feed-forward)
+    time_headway_s: float
+    cruise_speed_mps: float
+    rear_axle_m: float  # front bumper (the CAM's reference point) to the rear axle
+    mio_station_id: int  # the most important object: the vehicle it follows (0: none or no id)
+    mio_range_m: float
+    mio_bearing_rad: float  # counter-clockwise positive
+    mio_range_rate_mps: float
+    lane: int  # GCDC lane 1..3 (0: unavailable)
+    platoon_id: int  # 1 platoon A, 2 platoon B (0: none)
+
+
+@register_type
+@dataclass(frozen=True)
 class V2vBatch:
     """The plausible V2V/V2I messages received since the last release, and the receiver's counters."""
 
@@ -131,6 +156,7 @@ class V2vBatch:
     received: int  # since the start
     accepted: int
     rejected: tuple[ReasonCount, ...]  # `v2v_rejected` by reason, since the start
+    cooperative: tuple[V2vCooperative, ...] = ()  # iCLCMs, one per message
 
 
 @register_type
@@ -141,6 +167,17 @@ class CamSent:
     station_id: int
     generation_unix_s: float
     count: int
+
+
+@register_type
+@dataclass(frozen=True)
+class IclcmSent:
+    """Our iCLCM of this release, sent beside our CAM (None: none this release)."""
+
+    t_s: float
+    sent: bool
+    count: int  # since the start
+    iclcm: V2vCooperative | None
 
 
 @register_type
@@ -207,6 +244,7 @@ class PlatoonStatus:
     v_des_mps: float  # after speed limits and the supervisor's limit
     speed_limit_mps: float  # nan: none
     stop_distance_m: float  # nan: no red light ahead that we stop for
+    time_headway_s: float = math.nan  # the time gap the follow QPs keep (FollowParams.headway_s)
 
 
 __all__ = [
@@ -214,11 +252,13 @@ __all__ = [
     "GPS_NMEA",
     "PLATOON",
     "POSE",
+    "V2V_ICLCM_SENT",
     "V2V_RECEIVED",
     "V2V_SENT",
     "WORLD_LEADS",
     "CamSent",
     "EgoMotion",
+    "IclcmSent",
     "Lead",
     "LeadSet",
     "NmeaChunk",
@@ -227,6 +267,7 @@ __all__ = [
     "ReasonCount",
     "RoadsideItem",
     "V2vBatch",
+    "V2vCooperative",
     "V2vLight",
     "V2vLimit",
     "V2vVehicle",

@@ -48,6 +48,8 @@ MSG_CAM: Final = 2
 MSG_ETSI_CAM: Final = MSG_CAM
 MSG_SPATEM: Final = 4
 MSG_MAPEM: Final = 5
+# The CDD gives 10 to SSEM (signal status, since v1.3.1): off the GCDC, a stack reads our iCLCM as a
+# broken SSEM, which is why only the GCDC profile sends it (host/modules/io/v2v.py).
 MSG_ICLCM: Final = 10
 # protocolVersion each message is sent with, and the ones we read.
 CAM_PROTOCOL_VERSION: Final = 2  # EN 302 637-2 v1.4.1

@@ -40,6 +40,7 @@ from bywire.hil.world.spec import (
 from bywire.hil.world.traffic import EGO, World
 from bywire.hil.world.v2v import V2vBroadcaster
 from bywire.protocol.v2x.codec import VehicleState
+from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState
 from bywire.protocol.v2x.receiver import V2vReceiver
 from bywire.protocol.v2x.wire import decode, encode
 
@@ -257,7 +258,22 @@ def test_collision_counted_once_per_contact_and_ttc_while_closing() -> None:
 # ------------------------------------------------------------------------------------------------ V2V
 
 
+def _broadcast_all(world: World, seconds: float) -> list[tuple[float, VehicleState | CooperativeState]]:
+    bc = V2vBroadcaster(world, lambda t: EPOCH + t, seed=3)
+    out: list[tuple[float, VehicleState | CooperativeState]] = []
+    for k in range(1, round(seconds / 0.01) + 1):
+        t = k * 0.01
+        world.place_ego(t, 0.0, 0.0, 0.0, 0.0, 0.0)
+        world.step(t)
+        for payload in bc.due(t):
+            msg = decode(payload, EPOCH + t)
+            assert isinstance(msg, VehicleState | CooperativeState)
+            out.append((t, msg))
+    return out
+
+
 def _broadcast(sender: V2vSenderSpec, seconds: float) -> list[tuple[float, VehicleState]]:
+    """The CAMs one scripted car sends."""
     world = World(
         world_of(
             VehicleSpec(
@@ -265,17 +281,7 @@ def _broadcast(sender: V2vSenderSpec, seconds: float) -> list[tuple[float, Vehic
             )
         )
     )
-    bc = V2vBroadcaster(world, lambda t: EPOCH + t, seed=3)
-    out: list[tuple[float, VehicleState]] = []
-    for k in range(1, round(seconds / 0.01) + 1):
-        t = k * 0.01
-        world.place_ego(t, 0.0, 0.0, 0.0, 0.0, 0.0)
-        world.step(t)
-        for payload in bc.due(t):
-            msg = decode(payload, EPOCH + t)
-            assert isinstance(msg, VehicleState)
-            out.append((t, msg))
-    return out
+    return [(t, m) for t, m in _broadcast_all(world, seconds) if isinstance(m, VehicleState)]
 
 
 def test_broadcast_rate_latency_and_that_the_receiver_accepts_it() -> None:
@@ -309,6 +315,42 @@ def test_frozen_sender_repeats_its_position_exactly_silent_sends_nothing_late_is
     assert not [m for t, m in msgs if 3.5 <= m.generation_time_s - EPOCH < 4.5]
     late = [t - (m.generation_time_s - EPOCH) for t, m in msgs if 5.0 <= m.generation_time_s - EPOCH < 6.0]
     assert min(late) >= 0.43 - 1e-9
+
+
+def test_every_communicating_car_sends_its_iclcm_beside_its_cam() -> None:
+    cacc = DriverSpec(kind="cacc", v_set_mps=30.0, headway_s=0.6)
+    world = World(
+        world_of(
+            scripted("leader", 300.0, 20.0, v2v=V2vSenderSpec(station_id=101)),
+            VehicleSpec("cacc", 0, 280.0, 20.0, cacc, v2v=V2vSenderSpec(station_id=102)),
+            VehicleSpec("human", 1, 250.0, 20.0, DriverSpec(kind="idm"), v2v=V2vSenderSpec(station_id=103)),
+            VehicleSpec("mute", 0, 150.0, 20.0, DriverSpec(kind="acc"), v2v=None),
+            VehicleSpec(
+                "silent", 0, 120.0, 20.0, DriverSpec(kind="acc"),
+                v2v=V2vSenderSpec(station_id=105, silent=(Interval(0.0, 10.0),)),
+            ),
+        )
+    )  # fmt: skip
+    msgs = _broadcast_all(world, 3.0)
+    cams = {(m.station_id, m.generation_time_s): t for t, m in msgs if isinstance(m, VehicleState)}
+    iclcms = [(t, m) for t, m in msgs if isinstance(m, CooperativeState)]
+    # one beside each CAM: the same stamp, delivered with it, right after it
+    assert {(m.station_id, m.generation_time_s): t for t, m in iclcms} == cams
+    assert {m.station_id for _, m in iclcms} == {101, 102, 103}
+    last = {m.station_id: m for _, m in iclcms}
+    leader, follower, human = last[101], last[102], last[103]
+    assert leader.controller_type is ControllerType.CC and leader.target_accel_mps2 == pytest.approx(0.0)
+    assert leader.mio_station_id == 0 and leader.mio_range_m is None and leader.time_headway_s is None
+    assert follower.controller_type is ControllerType.CACC and follower.platoon_id == 1
+    assert (follower.time_headway_s, follower.cruise_speed_mps) == pytest.approx((0.6, 30.0))
+    assert follower.mio_station_id == 101
+    assert follower.mio_range_m == pytest.approx(world.gap[2], abs=0.5)  # 20 m/s: 0.4 m within a delivery
+    assert follower.target_accel_mps2 is not None and abs(follower.target_accel_mps2) < 3.0
+    assert human.controller_type is ControllerType.MANUAL and human.target_accel_mps2 is None
+    assert human.platoon_id == 2  # the other lane
+    # the receiver takes them (the cars are ours to hear)
+    rx = V2vReceiver()
+    assert all(rx.check(encode(m), m.generation_time_s + 0.05).accepted for _, m in iclcms), rx.v2v_rejected()
 
 
 # ------------------------------------------------------------------------------------------------ schema

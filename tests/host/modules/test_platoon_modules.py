@@ -109,7 +109,10 @@ def test_our_cam_reaches_another_host_on_its_clock() -> None:
     link_tx = MemV2xTransport("mem://cam", receive=False)
     link_rx = MemV2xTransport("mem://cam", clock=lambda: EPOCH + now["t"])
     try:
-        tx = Harness("v2v_tx", V2vTxIo(link_tx, lambda s: EPOCH + s, frame, station_id=1))
+        # The GCDC profile: a CAM every release (the ETSI rules would wait for a change or a second);
+        # the iCLCM beside it is tests/host/modules/test_v2v_iclcm.py's.
+        tx_io = V2vTxIo(link_tx, lambda s: EPOCH + s, frame, station_id=1, profile="gcdc", iclcm=False)
+        tx = Harness("v2v_tx", tx_io)
         rx = Harness("v2v_rx", V2vRxIo(link_rx, lambda s: EPOCH + s, own_station_id=2))
         lat, lon = frame.to_geodetic(100.0, 0.0)
         for k in range(1, 6):

@@ -276,6 +276,16 @@ class PlatoonControl(Module):
         ctx.publish(
             PLATOON,
             PlatoonStatus(
-                now, accel, mode, binding, station, n_leaders, feasible, target, speed_limit, stop_d
+                now,
+                accel,
+                mode,
+                binding,
+                station,
+                n_leaders,
+                feasible,
+                target,
+                speed_limit,
+                stop_d,
+                p.headway_s,
             ),
         )
