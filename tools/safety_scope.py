@@ -44,6 +44,7 @@ SPEC_TEST_FILES: tuple[str, ...] = (
     "tests/ecu/test_ecu_core_properties.py",
     "tests/protocol/test_e2e.py",
     "tests/protocol/test_vehicle_can.py",
+    "tests/protocol/test_vehicle_pq.py",
     "tests/protocol/test_canopen_link.py",
     "tests/ecu/test_ecu_app.py",
 )

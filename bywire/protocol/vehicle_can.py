@@ -5,7 +5,14 @@ times; this module only names each signal's field in a typed frame (SI units in 
 checks on load that the DBC and the code agree (units, enum values, CRC/counter layout), so a DBC edit
 that would change a meaning fails loudly instead of silently rescaling a command.
 
-Messages (all 8 bytes, byte 0 = CRC, byte 1 low nibble = alive counter, see `e2e`):
+Two vehicle profiles (`VEHICLE_PROFILES`) say what is spoken on the bus. `bywire` (the default, below):
+every message is ours, our drive-by-wire gateway reports the car. `pq` (`vehicle_pq`): the car's own
+VW PQ messages (opendbc's `vw_pq.dbc`) for what the car reports, with their XOR checksums and
+counters where the car has them, and ours (`vehicle_pq.dbc`) for the gateway's command, the E-stop,
+the INS, the arm button and the radar. A typed frame means the same in both; which message carries
+it is the profile's.
+
+Messages of the bywire profile (all 8 bytes, byte 0 = CRC, byte 1 low nibble = alive counter, see `e2e`):
 
     ESTOP_Radio    0x0F0  ESTOP   -> ECU, GATEWAY  50 ms  `EstopRadio`
     DBW_Command    0x100  ECU     -> GATEWAY       10 ms  `DbwCommand`
@@ -49,23 +56,38 @@ from bywire.protocol.ecu_types import EcuState, EstopMode, Gear
 from bywire.protocol.timebase import data_frame
 
 __all__ = [
+    "VEHICLE_PROFILES",
+    "BrakePressure",
+    "BrakeSwitch",
     "DbwCommand",
     "DriverInputs",
     "EstopRadio",
     "FrameError",
+    "GasPedal",
+    "GearReport",
+    "InertialReport",
     "Motion",
     "RadarTarget",
     "RejectReason",
+    "SafetyArmButton",
     "SteerReport",
     "VehicleCodec",
     "VehicleFrame",
     "VehicleTx",
     "WheelSpeeds",
     "default_dbc_path",
+    "xor_checksum",
 ]
 
-CRC_START_BIT, CRC_BITS = 0, 8  # the E2E layout every message must have (checked at load)
+CRC_START_BIT, CRC_BITS = 0, 8  # the E2E layout every message of ours must have (checked at load)
 COUNTER_START_BIT, COUNTER_BITS = 8, 4
+VEHICLE_PROFILES = ("bywire", "pq")  # what the vehicle CAN speaks: see the module docstring
+# How a message is protected (MessageInfo.checksum): our E2E CRC-8 over the frame id and bytes 1..,
+# the VW PQ XOR of the other data bytes, or nothing (a car message that carries no checksum).
+CHECKSUM_E2E, CHECKSUM_XOR, CHECKSUM_NONE = "e2e_crc8", "xor", "none"
+# Packaged DBCs that only load with cantools' strict checks off: opendbc's vw_pq.dbc writes Motor_2's
+# multiplexer as `m`, not `M`, so strict cantools calls the multiplexed signals overlapping.
+LENIENT_DBCS = frozenset({"vw_pq.dbc"})
 
 
 # -- typed frames ---------------------------------------------------------------------------------
@@ -153,13 +175,74 @@ class RadarTarget:
     azimuth_rad: float
 
 
-VehicleFrame = EstopRadio | DbwCommand | WheelSpeeds | Motion | DriverInputs | SteerReport | RadarTarget
+@dataclass(frozen=True, slots=True)
+class InertialReport:
+    """GW_Inertial (profile pq): the INS's longitudinal acceleration (gravity removed, vehicle frame,
+    + forward) and yaw rate: `Motion`'s INS half, which no PQ message of the car carries."""
+
+    long_accel_mps2: float
+    yaw_rate_radps: float
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyArmButton:
+    """GW_Arm (profile pq): the safety driver's arm button on our gateway (`DriverInputs.safety_arm`)."""
+
+    safety_arm: bool
+
+
+@dataclass(frozen=True, slots=True)
+class BrakePressure:
+    """Bremse_5 (profile pq): the ESP's measured brake pressure."""
+
+    brake_bar_actual: float
+
+
+@dataclass(frozen=True, slots=True)
+class GearReport:
+    """Getriebe_1 (profile pq): the gearbox's selector position, as the gear the ECU drives in."""
+
+    gear_engaged: Gear
+
+
+@dataclass(frozen=True, slots=True)
+class BrakeSwitch:
+    """Motor_2 (profile pq): the brake light switch, the driver's foot on the brake pedal."""
+
+    brake_pedal_pressed: bool
+
+
+@dataclass(frozen=True, slots=True)
+class GasPedal:
+    """Motor_3 (profile pq): the accelerator pedal as the engine reads it."""
+
+    throttle_pedal_pct: float
+
+
+VehicleFrame = (
+    EstopRadio
+    | DbwCommand
+    | WheelSpeeds
+    | Motion
+    | DriverInputs
+    | SteerReport
+    | RadarTarget
+    | InertialReport
+    | SafetyArmButton
+    | BrakePressure
+    | GearReport
+    | BrakeSwitch
+    | GasPedal
+)
 FrameKey = int | str | type  # a frame id, a DBC message name, or a typed-frame class
 
 
 # -- the code's half of the schema: which field is which signal, in which unit -----------------------
 
-_Kind = Literal["float", "bool", "enum"]
+# float, bool, enum: one signal each. magnitude (profile pq): a float sent as a magnitude signal and
+# a sign signal (1 = negative), as VW does. mapped (profile pq): an enum whose raw values are the
+# car's, not the enum's own (a selector position -> Gear).
+_Kind = Literal["float", "bool", "enum", "magnitude", "mapped"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,22 +266,35 @@ def _enum(name: str, signal: str, enum: type[IntEnum]) -> _Field:
     return _Field(name, signal, "enum", enum=enum)
 
 
-_LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
-    EstopRadio: ("ESTOP_Radio", (_enum("mode", "EstopMode", EstopMode),)),
-    DbwCommand: (
-        "DBW_Command",
-        (
-            _num("throttle_pct", "ThrottlePedal", "%"),
-            _num("brake_bar", "BrakePressure", "bar"),
-            _num("steer_angle_rad", "SteerAngle", "rad"),
-            _flag("engage", "Engage"),
-            _flag("park_brake", "ParkBrake"),
-            _flag("ignition", "Ignition"),
-            _flag("steer_enable", "SteerEnable"),
-            _enum("ecu_state", "EcuState", EcuState),
-            _enum("gear_request", "GearRequest", Gear),
-        ),
+_ESTOP: Final = ("ESTOP_Radio", (_enum("mode", "EstopMode", EstopMode),))
+_COMMAND: Final = (
+    "DBW_Command",
+    (
+        _num("throttle_pct", "ThrottlePedal", "%"),
+        _num("brake_bar", "BrakePressure", "bar"),
+        _num("steer_angle_rad", "SteerAngle", "rad"),
+        _flag("engage", "Engage"),
+        _flag("park_brake", "ParkBrake"),
+        _flag("ignition", "Ignition"),
+        _flag("steer_enable", "SteerEnable"),
+        _enum("ecu_state", "EcuState", EcuState),
+        _enum("gear_request", "GearRequest", Gear),
     ),
+)
+_RADAR: Final = (
+    "RADAR_Target",
+    (
+        _flag("valid", "TargetValid"),
+        _num("range_m", "Range", "m"),
+        _num("range_rate_mps", "RangeRate", "m/s"),
+        _num("azimuth_rad", "Azimuth", "rad"),
+    ),
+)
+
+_Layout = dict[type, tuple[str, tuple[_Field, ...]]]
+_LAYOUT: Final[_Layout] = {
+    EstopRadio: _ESTOP,
+    DbwCommand: _COMMAND,
     WheelSpeeds: (
         "GW_WheelSpeeds",
         (
@@ -233,15 +329,18 @@ _LAYOUT: Final[dict[type, tuple[str, tuple[_Field, ...]]]] = {
             _num("steer_torque_nm", "SteerTorqueDriver", "Nm"),
         ),
     ),
-    RadarTarget: (
-        "RADAR_Target",
-        (
-            _flag("valid", "TargetValid"),
-            _num("range_m", "Range", "m"),
-            _num("range_rate_mps", "RangeRate", "m/s"),
-            _num("azimuth_rad", "Azimuth", "rad"),
-        ),
+    RadarTarget: _RADAR,
+}
+# Profile pq: the messages that stay ours (`vehicle_pq.dbc`); the car's are in `vehicle_pq`.
+_PQ_OWN_LAYOUT: Final[_Layout] = {
+    EstopRadio: _ESTOP,
+    DbwCommand: _COMMAND,
+    InertialReport: (
+        "GW_Inertial",
+        (_num("long_accel_mps2", "LongAccel", "m/s2"), _num("yaw_rate_radps", "YawRate", "rad/s")),
     ),
+    SafetyArmButton: ("GW_Arm", (_flag("safety_arm", "SafetyArm"),)),
+    RadarTarget: _RADAR,
 }
 
 
@@ -282,6 +381,12 @@ class SignalInfo:
     start: int = 0
     mask: int = 0
     sign_bit: int = 0  # 0 for unsigned signals
+    sign_start: int = -1  # kind "magnitude": the start bit of its 1-bit sign signal (1 = negative)
+    mapping: tuple[tuple[int, IntEnum], ...] = ()  # kind "mapped": (raw value, member) pairs
+
+    def mapping_text(self) -> str:
+        """The raw values a "mapped" signal takes, for error messages: `5 (DRIVE), 7 (REVERSE)`."""
+        return ", ".join(f"{raw} ({member.name})" for raw, member in self.mapping)
 
 
 @dataclass(frozen=True, slots=True)
@@ -295,24 +400,30 @@ class MessageInfo:
     cycle_time_s: float
     receivers: frozenset[str]
     senders: tuple[str, ...]
-    crc_signal: str
-    counter_signal: str
+    crc_signal: str  # "" where the message has no checksum
+    counter_signal: str  # "" where the message has no alive counter
     signals: tuple[SignalInfo, ...]
     message: Any  # cantools.database.can.Message (cantools ships no type stubs)
+    checksum: str = CHECKSUM_E2E  # CHECKSUM_E2E | CHECKSUM_XOR | CHECKSUM_NONE
+    checksum_byte: int = CRC_START_BIT // 8
+    counter_start: int | None = COUNTER_START_BIT  # None: the message has no alive counter
+    # The payload bits (data read as one little-endian integer) that are neither checksum nor counter:
+    # decoding is a function of these alone.
+    value_mask: int = -1 << (COUNTER_START_BIT + COUNTER_BITS)
 
 
-def default_dbc_path() -> Path:
-    """The packaged `vehicle.dbc` (bywire.protocol)."""
-    return Path(str(resources.files("bywire.protocol").joinpath("vehicle.dbc")))
+def default_dbc_path(name: str = "vehicle.dbc") -> Path:
+    """The packaged `vehicle.dbc` (or another DBC of bywire.protocol)."""
+    return Path(str(resources.files("bywire.protocol").joinpath(name)))
 
 
 def _bit_range(length: int, signed: bool) -> tuple[int, int]:
     return (-(1 << (length - 1)), (1 << (length - 1)) - 1) if signed else (0, (1 << length) - 1)
 
 
-def _compile(db: Any, where: str) -> dict[int, MessageInfo]:
+def _compile(db: Any, where: str, layout: _Layout = _LAYOUT) -> dict[int, MessageInfo]:
     by_name = {m.name: m for m in db.messages}
-    expected = {name for name, _ in _LAYOUT.values()}
+    expected = {name for name, _ in layout.values()}
     missing = sorted(expected - by_name.keys())
     extra = sorted(by_name.keys() - expected)
     if missing or extra:
@@ -321,7 +432,7 @@ def _compile(db: Any, where: str) -> dict[int, MessageInfo]:
             f"messages missing from the DBC {missing}, messages without a typed frame {extra}"
         )
     infos: dict[int, MessageInfo] = {}
-    for frame_type, (name, fields) in _LAYOUT.items():
+    for frame_type, (name, fields) in layout.items():
         msg = by_name[name]
         here = f"{where}: message {name} ({msg.frame_id:#05x})"
         if msg.is_extended_frame or msg.frame_id > 0x7FF:
@@ -423,28 +534,50 @@ def _compile(db: Any, where: str) -> dict[int, MessageInfo]:
     return infos
 
 
+def load_dbc(dbc_path: Path | None, resource_name: str, *, strict: bool = True) -> Any:
+    """A cantools database from `dbc_path`, or from the packaged `resource_name` when None (read
+    through importlib.resources: inside the firmware zipapp the DBC is not a file); ValueError
+    naming the file if it cannot be loaded."""
+    where = dbc_path if dbc_path is not None else resource_name
+    try:
+        resource = (
+            resources.files("bywire.protocol").joinpath(resource_name) if dbc_path is None else dbc_path
+        )
+        return cantools.database.load_string(
+            resource.read_text(encoding="utf-8"), database_format="dbc", strict=strict
+        )
+    except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:
+        raise ValueError(f"{where}: cannot load the vehicle DBC: {exc}") from exc
+
+
 class VehicleCodec:
     """Typed frames <-> CAN messages per the vehicle DBC (default: the packaged `vehicle.dbc`).
 
+    `profile` "pq" speaks the VW PQ car's own reports (`vehicle_pq`): `dbc_path` then names our half
+    (default the packaged `vehicle_pq.dbc`), the car's half is the packaged `vw_pq.dbc`.
     Loading checks that the DBC and the typed frames agree; any mismatch raises ValueError naming the
     file, message and signal.
     """
 
-    def __init__(self, dbc_path: Path | str | None = None) -> None:
-        self.dbc_path = Path(dbc_path) if dbc_path is not None else default_dbc_path()
-        try:
-            # Read through importlib.resources: inside the firmware zipapp the DBC is not a file.
-            resource = (
-                resources.files("bywire.protocol").joinpath("vehicle.dbc")
-                if dbc_path is None
-                else self.dbc_path
-            )
-            db = cantools.database.load_string(
-                resource.read_text(encoding="utf-8"), database_format="dbc", strict=True
-            )
-        except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:
-            raise ValueError(f"{self.dbc_path}: cannot load the vehicle DBC: {exc}") from exc
-        self._by_id = _compile(db, str(self.dbc_path))
+    def __init__(self, dbc_path: Path | str | None = None, *, profile: str = "bywire") -> None:
+        if profile not in VEHICLE_PROFILES:
+            raise ValueError(f"vehicle profile {profile!r}: expected one of {', '.join(VEHICLE_PROFILES)}")
+        self.profile = profile
+        path = Path(dbc_path) if dbc_path is not None else None
+        if profile == "pq":
+            from bywire.protocol.vehicle_pq import PQ_DBC_RESOURCE, compile_pq
+
+            self.dbc_path = path if path is not None else default_dbc_path("vehicle_pq.dbc")
+            own = _compile(load_dbc(path, "vehicle_pq.dbc"), str(self.dbc_path), _PQ_OWN_LAYOUT)
+            lenient = PQ_DBC_RESOURCE in LENIENT_DBCS
+            car = compile_pq(load_dbc(None, PQ_DBC_RESOURCE, strict=not lenient), PQ_DBC_RESOURCE)
+            clash = sorted(own.keys() & car.keys())
+            if clash:
+                raise ValueError(f"{self.dbc_path}: frame ids {clash} are the car's (vw_pq.dbc)")
+            self._by_id = {**own, **car}
+        else:
+            self.dbc_path = path if path is not None else default_dbc_path()
+            self._by_id = _compile(load_dbc(path, "vehicle.dbc"), str(self.dbc_path))
         self._by_name = {info.name: info for info in self._by_id.values()}
         self._by_type = {info.frame_type: info for info in self._by_id.values()}
         self._packers = {info.frame_id: _generate_packers(info) for info in self._by_id.values()}
@@ -495,11 +628,16 @@ class VehicleCodec:
         if isinstance(counter, bool) or not isinstance(counter, int) or not 0 <= counter < COUNTER_MODULO:
             raise ValueError(f"{info.name}: alive counter {counter!r} outside 0..{COUNTER_MODULO - 1}")
         packers = self._packers[info.frame_id]
-        payload = (packers.pack_saturating if saturate else packers.pack)(frame, counter << COUNTER_START_BIT)
+        start = info.counter_start
+        counted = counter << start if start is not None else 0
+        payload = (packers.pack_saturating if saturate else packers.pack)(frame, counted)
         if payload is None:  # a value the generated packer does not take as it is
-            payload = pack_general(info, frame, counter << COUNTER_START_BIT, saturate)
+            payload = pack_general(info, frame, counted, saturate)
         data = bytearray(payload.to_bytes(info.length, "little"))
-        data[0] = e2e_crc(info.frame_id, data)
+        if info.checksum == CHECKSUM_E2E:
+            data[0] = e2e_crc(info.frame_id, data)
+        elif info.checksum == CHECKSUM_XOR:
+            data[info.checksum_byte] = xor_checksum(data, info.checksum_byte)
         return data_frame(info.frame_id, data, timestamp_s)
 
     # -- decoding --
@@ -528,19 +666,29 @@ class VehicleCodec:
         return info
 
     def check_crc(self, info: MessageInfo, data: bytes | bytearray) -> None:
-        """FrameError(corrupt) unless byte 0 of `data` is the E2E CRC of `info`'s frame id and data."""
-        expected = e2e_crc(info.frame_id, data)
-        if data[0] != expected:
+        """FrameError(corrupt) unless `data` carries its message's checksum: byte 0 the E2E CRC of
+        `info`'s frame id and data, or (profile pq) the XOR of the other bytes; nothing to check for
+        a car message without a checksum."""
+        if info.checksum == CHECKSUM_E2E:
+            expected = e2e_crc(info.frame_id, data)
+        elif info.checksum == CHECKSUM_XOR:
+            expected = xor_checksum(data, info.checksum_byte)
+        else:
+            return
+        if data[info.checksum_byte] != expected:
             raise crc_error(info, data, expected)
 
-    def decode_payload(self, info: MessageInfo, data: bytes | bytearray) -> tuple[VehicleFrame, int]:
-        """(typed frame, alive counter) of a structurally valid payload; FrameError(malformed) if a
-        value lies outside its DBC range or names no enum member. The CRC is not checked here."""
+    def decode_payload(self, info: MessageInfo, data: bytes | bytearray) -> tuple[VehicleFrame, int | None]:
+        """(typed frame, alive counter or None for a message without one) of a structurally valid
+        payload; FrameError(malformed) if a value lies outside its DBC range or names no enum member.
+        The checksum is not checked here."""
         payload = int.from_bytes(data, "little")
+        start = info.counter_start
+        counter = (payload >> start) & (COUNTER_MODULO - 1) if start is not None else None
         frame = self._packers[info.frame_id].unpack(payload)
         if frame is not None:
-            return frame, (payload >> COUNTER_START_BIT) & (COUNTER_MODULO - 1)
-        return unpack_general(info, payload), (payload >> COUNTER_START_BIT) & (COUNTER_MODULO - 1)
+            return frame, counter
+        return unpack_general(info, payload), counter
 
     def decode(self, msg: can.Message) -> VehicleFrame:
         """The typed frame in `msg`, checking structure, CRC and DBC ranges (not the counter or age:
@@ -560,6 +708,11 @@ def pack_general(info: MessageInfo, frame: VehicleFrame, payload: int, saturate:
         except ValueError as exc:
             where = f"{info.name}.{sig.signal} ({info.frame_type.__name__}.{sig.field})"
             raise ValueError(f"{where}: {exc}") from None
+        if sig.kind == "magnitude":
+            # _to_raw gave the signed count; VW sends its magnitude and a sign bit (1 = negative).
+            if raw < 0:
+                payload |= 1 << sig.sign_start
+            raw = -raw if raw < 0 else raw
         payload |= (raw & sig.mask) << sig.start
     return payload
 
@@ -573,6 +726,16 @@ def unpack_general(info: MessageInfo, payload: int) -> VehicleFrame:
         r = (payload >> sig.start) & sig.mask
         if r & sig.sign_bit:
             r -= sig.mask + 1
+        if sig.kind == "mapped":
+            found = dict(sig.mapping).get(r)
+            if found is None:
+                raise FrameError(
+                    info.frame_id,
+                    RejectReason.MALFORMED,
+                    f"{info.name}.{sig.signal} = {r} is none of {sig.mapping_text()}",
+                )
+            values[sig.field] = found
+            continue
         if not sig.raw_min <= r <= sig.raw_max:
             raise FrameError(
                 info.frame_id,
@@ -582,6 +745,9 @@ def unpack_general(info: MessageInfo, payload: int) -> VehicleFrame:
             )
         if sig.kind == "float":
             values[sig.field] = r * sig.scale + sig.offset
+        elif sig.kind == "magnitude":
+            v = r * sig.scale + sig.offset
+            values[sig.field] = -v if (payload >> sig.sign_start) & 1 else v
         elif sig.kind == "bool":
             values[sig.field] = bool(r)
         else:
@@ -615,6 +781,10 @@ def _generate_packers(info: MessageInfo) -> _Packers:
     The general loop, with a function call and a getattr per signal, cost about half of a frame's
     encoding; tests/protocol/test_vehicle_can_packers.py holds the two to the same results.
     """
+    if any(sig.kind not in ("float", "bool", "enum") for sig in info.signals):
+        # The car's VW messages (profile pq) go through the general code: a sign-magnitude pair or a
+        # selector table has no straight-line form here, and the receiver caches decoded frames.
+        return _Packers(_decline_pack, _decline_pack, _decline_unpack)
     ns: dict[str, Any] = {"_T": info.frame_type, "_float": float}
     pack: list[str] = []
     pack_sat: list[str] = []
@@ -673,10 +843,31 @@ def _generate_packers(info: MessageInfo) -> _Packers:
     return _Packers(ns["pack"], ns["pack_saturating"], ns["unpack"])
 
 
+def _decline_pack(frame: Any, payload: int) -> None:
+    return None
+
+
+def _decline_unpack(payload: int) -> None:
+    return None
+
+
 def crc_error(info: MessageInfo, data: bytes | bytearray, expected: int) -> FrameError:
+    what = "CRC" if info.checksum == CHECKSUM_E2E else "checksum"
     return FrameError(
-        info.frame_id, RejectReason.CORRUPT, f"{info.name}: CRC {data[0]:#04x}, expected {expected:#04x}"
+        info.frame_id,
+        RejectReason.CORRUPT,
+        f"{info.name}: {what} {data[info.checksum_byte]:#04x}, expected {expected:#04x}",
     )
+
+
+def xor_checksum(data: bytes | bytearray | memoryview, checksum_byte: int) -> int:
+    """The VW PQ checksum: the XOR of every data byte but the checksum's own (opendbc's
+    `xor_checksum`, panda's `volkswagen_pq_compute_checksum`)."""
+    x = 0
+    for i, byte in enumerate(data):
+        if i != checksum_byte:
+            x ^= byte
+    return x
 
 
 def _to_raw(sig: SignalInfo, value: object, saturate: bool) -> int:
@@ -686,6 +877,11 @@ def _to_raw(sig: SignalInfo, value: object, saturate: bool) -> int:
         if value not in (0, 1):
             raise ValueError(f"{value!r} is not a flag (bool)")
         return 1 if value else 0
+    if kind == "mapped":
+        for raw_value, member in sig.mapping:
+            if value is member:
+                return raw_value
+        raise ValueError(f"{value!r} is none of {sig.mapping_text()}")
     if kind == "enum":
         assert sig.enum is not None
         if type(value) is sig.enum:
@@ -709,14 +905,20 @@ def _to_raw(sig: SignalInfo, value: object, saturate: bool) -> int:
             raise ValueError(f"{value!r} is not a number") from None
     if v != v:
         raise ValueError("NaN")
+    negative = kind == "magnitude" and v < 0.0
+    if negative:
+        v = -v  # the range is the magnitude's; the sign goes in its own bit (pack_general)
     scaled = (v - sig.offset) / sig.scale
     if saturate:
         lo, hi = sig.raw_min, sig.raw_max
-        return round(lo if scaled < lo else (hi if scaled > hi else scaled))
+        clamped = round(lo if scaled < lo else (hi if scaled > hi else scaled))
+        return -clamped if negative else clamped
     raw = round(scaled) if math.isfinite(scaled) else None
     if raw is None or not sig.raw_min <= raw <= sig.raw_max:
-        raise ValueError(f"{v} {sig.unit} outside the DBC range [{sig.minimum:g}, {sig.maximum:g}]")
-    return raw
+        shown = -v if negative else v
+        span = "magnitude " if kind == "magnitude" else ""
+        raise ValueError(f"{shown} {sig.unit} outside the DBC {span}range [{sig.minimum:g}, {sig.maximum:g}]")
+    return -raw if negative else raw
 
 
 class VehicleTx:

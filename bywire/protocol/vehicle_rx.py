@@ -27,8 +27,7 @@ from bywire.protocol.e2e import (
     e2e_crc,
 )
 from bywire.protocol.vehicle_can import (
-    COUNTER_BITS,
-    COUNTER_START_BIT,
+    CHECKSUM_E2E,
     FrameError,
     FrameKey,
     MessageInfo,
@@ -45,8 +44,7 @@ UNKNOWN_IDS_KEPT = 16  # distinct unknown ids listed in stats(); the rest only c
 
 _OUTCOMES: Final = ("accepted", "ignored", *(r.value for r in RejectReason))
 _RESYNC: Final = CounterStatus.RESYNC
-# Every signal lies above the CRC byte and the counter nibble (checked when the DBC is compiled).
-_SIGNAL_BITS_START: Final = COUNTER_START_BIT + COUNTER_BITS
+_OK: Final = CounterStatus.OK
 _COUNTERS: Final = (*_OUTCOMES, "lost", "resync")
 
 
@@ -64,7 +62,7 @@ class _RxState:
     last_time_s: float | None = None
     error_streak: int = 0
     last_reject: tuple[str, str, float] | None = None  # (reason, detail, now_s)
-    # The signal bits (above the CRC and counter) of the last payload decoded, and its frame:
+    # The signal bits (all but checksum and counter) of the last payload decoded, and its frame:
     # decoding is a function of those bits alone, and most reports repeat their values.
     decoded_bits: int = -1
     decoded_frame: VehicleFrame | None = None
@@ -184,9 +182,12 @@ class VehicleRx:
             ):
                 self.codec.check_structure(msg)  # says which structural check failed (raises)
             info = state.info  # type: ignore[union-attr]  # check_structure raised if state is None
-            expected = e2e_crc(frame_id, data)
-            if data[0] != expected:
-                raise crc_error(info, data, expected)
+            if info.checksum == CHECKSUM_E2E:  # ours, every frame: inline
+                expected = e2e_crc(frame_id, data)
+                if data[0] != expected:
+                    raise crc_error(info, data, expected)
+            else:  # a car's checksum (profile pq), or none to check
+                self.codec.check_crc(info, data)
         except FrameError as err:
             if state is None:
                 self._note_unknown(msg)
@@ -211,10 +212,11 @@ class VehicleRx:
                 self._count(state, "stale", detail, now_s)
                 return None
         payload = int.from_bytes(data, "little")
-        bits = payload >> _SIGNAL_BITS_START
+        bits = payload & info.value_mask
+        counter_start = info.counter_start
         if bits == state.decoded_bits:
             frame = state.decoded_frame
-            counter = (payload >> COUNTER_START_BIT) & (COUNTER_MODULO - 1)
+            counter = (payload >> counter_start) & (COUNTER_MODULO - 1) if counter_start is not None else None
         else:
             try:
                 frame, counter = self.codec.decode_payload(info, data)
@@ -225,9 +227,13 @@ class VehicleRx:
         timed_out = (
             state.last_time_s is not None and now_s - state.last_time_s > self.timeout_cycles * cycle_s
         )
-        status, lost = check_counter(
-            state.last_counter, counter, timed_out=timed_out, max_delta=self.max_delta_counter
-        )
+        if counter is None:
+            # A car message without an alive counter (profile pq): nothing tells a repeat from news.
+            status, lost = _OK, 0
+        else:
+            status, lost = check_counter(
+                state.last_counter, counter, timed_out=timed_out, max_delta=self.max_delta_counter
+            )
         if status in COUNTER_REJECTS:
             self._count(
                 state, status.value, f"{info.name}: counter {counter} after {state.last_counter}", now_s
