@@ -33,10 +33,17 @@ What the application adds to the pure core's rules (ecu.safety's docstring), DES
   re-arm, which the safety driver's arm button completes.
 - Watchdog times (0x1016, 0x1017, 0x1400sub5, TPDO event timers) and calibrations cannot be
   written while the ECU actuates (ENGAGED, PAUSED, SAFE_STOP, DISABLED).
+
+Vehicle profiles (protocol.vehicle_can): the ECU hears the car in our gateway's reports (`bywire`) or
+in the VW PQ car's own messages (`pq`, protocol.vehicle_pq). The vehicle reports are every message the
+DBC sends to the ECU but the E-stop radio, and each core input is read from the report whose typed
+frame carries it; freshness (10 cycles of each report's GenMsgCycleTime), age, corruption streaks and
+the counter checks are the same code on both profiles, over more and slower messages on the PQ bus.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -63,18 +70,16 @@ from bywire.protocol.ecu_types import EcuState, EstopMode, Fault, Gear, RequestF
 from bywire.protocol.host_link import EcuStatus, next_counter
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
+    VEHICLE_PROFILES,
     DbwCommand,
-    DriverInputs,
     EstopRadio,
-    Motion,
-    SteerReport,
     VehicleCodec,
     VehicleTx,
     WheelSpeeds,
 )
-from bywire.protocol.vehicle_rx import VehicleRx
+from bywire.protocol.vehicle_rx import RxMonitor, VehicleRx
 
-VEHICLE_REPORTS = ("GW_WheelSpeeds", "GW_Motion", "GW_Driver", "GW_Steer")
+ESTOP_MESSAGE = "ESTOP_Radio"
 VEHICLE_TIMEOUT_CYCLES = 10.0
 VEHICLE_MAX_AGE_CYCLES = 5.0
 # Two DBW_Command periods (GenMsgCycleTime 10 ms): see the module docstring.
@@ -121,6 +126,7 @@ class EcuApp:
         config: EcuConfig | None = None,
         stats: CycleStats | None = None,
         on_calibration: Any = None,
+        vehicle_profile: str = "bywire",
     ) -> None:
         self.vehicle_bus = vehicle_bus
         self.clock = clock
@@ -131,7 +137,7 @@ class EcuApp:
         # compute its (passive) outputs, which the packaged default provides.
         self._core_cal = calibration if calibration is not None else default_calibration()
         self.stats = stats or CycleStats()
-        self.codec = VehicleCodec()
+        self.codec = VehicleCodec(profile=vehicle_profile)
         # A report is timed out after 10 of its cycles (100 ms for the 10 ms GW_* frames): on a shared
         # 2-core machine the plant's frames jitter by tens of ms, and a 5-cycle timeout stopped the car
         # for that alone. A frame that waited more than 5 cycles (the ECU itself was late) is stale.
@@ -139,9 +145,18 @@ class EcuApp:
             self.codec, "ECU", timeout_cycles=VEHICLE_TIMEOUT_CYCLES, max_age_cycles=VEHICLE_MAX_AGE_CYCLES
         )
         self.tx = VehicleTx(self.codec)
-        self._reports = tuple(self.rx.monitor(name) for name in VEHICLE_REPORTS)
-        self._wheels, self._motion, self._driver, self._steer = self._reports
-        self._estop = self.rx.monitor("ESTOP_Radio")
+        self.vehicle_reports = vehicle_reports(self.codec)
+        self._reports = tuple(self.rx.monitor(name) for name in self.vehicle_reports)
+        source = _report_sources(self.codec, self.vehicle_reports, self._reports)
+        self._wheels = source["fl_mps"]
+        self._accel, self._gear = source["long_accel_mps2"], source["gear_engaged"]
+        self._steer = source["steer_angle_rad"]
+        self._brake, self._throttle, self._arm = (
+            source["brake_pedal_pressed"],
+            source["throttle_pedal_pct"],
+            source["safety_arm"],
+        )
+        self._estop = self.rx.monitor(ESTOP_MESSAGE)
         self._reported_faults = -1
         self._status_counter = 0
         self._on_calibration = on_calibration
@@ -248,8 +263,7 @@ class EcuApp:
         if self.cycle_exceptions <= 10 or self.cycle_exceptions % 1000 == 0:  # a log, not a flood
             log.error("ECU cycle at %.3f s raised (%d so far): %r", now_s, self.cycle_exceptions, exc)
         try:
-            gear = self._motion.state.last_frame
-            engaged = gear.gear_engaged if isinstance(gear, Motion) else Gear.DRIVE
+            engaged = _read(self._gear, "gear_engaged", Gear.DRIVE)
             frame = self.guard.replacement(self.core.safety.state, engaged, now_s)
             self.vehicle_bus.send(self.tx.encode(frame, timestamp_s=now_s))
             self._next_command_s = now_s + self.config.command_period_s
@@ -327,21 +341,10 @@ class EcuApp:
 
         self._inputs_valid_until_s = horizon
         wheels = self._wheels.state.last_frame
-        motion = self._motion.state.last_frame
-        driver = self._driver.state.last_frame
-        steer = self._steer.state.last_frame
         estop = self._estop.state.last_frame
         node = self.node
         request = node.latest_request()
         req = request[0] if request is not None else None
-        brake_pressed, throttle_pct, arm = (
-            (driver.brake_pedal_pressed, driver.throttle_pedal_pct, driver.safety_arm)
-            if isinstance(driver, DriverInputs)
-            else (False, 0.0, False)
-        )
-        steer_torque, steer_angle = (
-            (steer.steer_torque_nm, steer.steer_angle_rad) if isinstance(steer, SteerReport) else (0.0, 0.0)
-        )
         return EcuInputs(
             estop_mode=estop.mode if isinstance(estop, EstopRadio) else EstopMode.INVALID,
             estop_fresh=self._estop_heard(now_s),
@@ -354,16 +357,16 @@ class EcuApp:
             vehicle_corrupt=vehicle_corrupt,
             calibration_valid=self.calibration is not None,
             overrun_streak=self.stats.overrun_streak,
-            driver_brake_pressed=brake_pressed,
-            driver_throttle_pct=throttle_pct,
-            driver_steer_torque_nm=steer_torque,
+            driver_brake_pressed=_read(self._brake, "brake_pedal_pressed", False),
+            driver_throttle_pct=_read(self._throttle, "throttle_pedal_pct", 0.0),
+            driver_steer_torque_nm=_read(self._steer, "steer_torque_nm", 0.0),
             speed_mps=wheels.mean_mps if isinstance(wheels, WheelSpeeds) else 0.0,
-            accel_meas_mps2=motion.long_accel_mps2 if isinstance(motion, Motion) else 0.0,
-            steer_angle_meas_rad=steer_angle,
+            accel_meas_mps2=_read(self._accel, "long_accel_mps2", 0.0),
+            steer_angle_meas_rad=_read(self._steer, "steer_angle_rad", 0.0),
             unlatch=self._unlatch_pending,
-            gear_engaged=motion.gear_engaged if isinstance(motion, Motion) else Gear.DRIVE,
+            gear_engaged=_read(self._gear, "gear_engaged", Gear.DRIVE),
             wheel_speed_max_mps=wheels.max_mps if isinstance(wheels, WheelSpeeds) else math.inf,
-            safety_arm=arm,
+            safety_arm=_read(self._arm, "safety_arm", False),
             loop_stall=self._stall_pending,
             internal_error=self._internal_pending,
             tx_guard_trip=self._guard_pending,
@@ -402,6 +405,59 @@ class EcuApp:
         }
 
 
+# -- the vehicle reports of a profile ------------------------------------------------------------------
+
+
+def vehicle_reports(codec: VehicleCodec) -> tuple[str, ...]:
+    """The messages the ECU judges the car by: every message the DBC sends to the ECU but the E-stop."""
+    return tuple(name for name in codec.received_by("ECU") if name != ESTOP_MESSAGE)
+
+
+# The core's vehicle inputs, each by a field of the typed frame that carries it (WheelSpeeds by fl_mps).
+_REPORT_FIELDS = (
+    "fl_mps",
+    "long_accel_mps2",
+    "gear_engaged",
+    "steer_angle_rad",
+    "brake_pedal_pressed",
+    "throttle_pedal_pct",
+    "safety_arm",
+)
+
+
+def _report_sources(
+    codec: VehicleCodec, names: tuple[str, ...], monitors: tuple[RxMonitor, ...]
+) -> dict[str, RxMonitor]:
+    """For each of `_REPORT_FIELDS`, the monitor of the report whose typed frame has that field;
+    ValueError naming the DBC if a profile leaves one out (the ECU would judge the car blind)."""
+    found: dict[str, RxMonitor] = {}
+    for name, monitor in zip(names, monitors, strict=True):
+        fields = {f.name for f in dataclasses.fields(codec.info(name).frame_type)}
+        for wanted in _REPORT_FIELDS:
+            if wanted in fields and wanted not in found:
+                found[wanted] = monitor
+    missing = [f for f in _REPORT_FIELDS if f not in found]
+    if missing:
+        raise ValueError(f"{codec.dbc_path}: no vehicle report to the ECU carries {', '.join(missing)}")
+    return found
+
+
+def _read(monitor: RxMonitor, field: str, default: Any) -> Any:
+    """The field of the report's last accepted frame, or `default` before the first one."""
+    frame = monitor.state.last_frame
+    return default if frame is None else getattr(frame, field)
+
+
+def selftest() -> None:
+    """The firmware image's deeper check (ecu.firmware's SELFTEST_HOOK): both vehicle profiles' codecs
+    load from the image and give the ECU every input it judges the car by."""
+    for profile in VEHICLE_PROFILES:
+        codec = VehicleCodec(profile=profile)
+        names = vehicle_reports(codec)
+        rx = VehicleRx.for_node(codec, "ECU")
+        _report_sources(codec, names, tuple(rx.monitor(name) for name in names))
+
+
 # -- calibration for a run ---------------------------------------------------------------------------
 
 
@@ -428,6 +484,13 @@ def add_run_arguments(p: Any) -> None:
         "--host-link",
         default="udp://127.0.0.1:47000?peer=127.0.0.1:47001",
         help="host link bus URL: CAN, or CAN frames over UDP (udp://BIND?peer=HOST:PORT)",
+    )
+    p.add_argument(
+        "--vehicle-profile",
+        choices=VEHICLE_PROFILES,
+        default="bywire",
+        help="what the vehicle CAN speaks: bywire (our gateway's reports) or pq (a VW PQ Passat's own "
+        "messages, opendbc's vw_pq.dbc; command and E-stop stay ours)",
     )
     p.add_argument(
         "--calibration", type=Path, help="calibration file (default: the packaged Passat calibration)"
@@ -493,7 +556,16 @@ def main(argv: list[str] | None = None) -> int:
         def on_cal(data: bytes, _cal: Calibration) -> None:
             persist_calibration_bytes(args.store, data)
 
-    app = EcuApp(vehicle_bus, host_bus, clock, cal, cal_error, stats=stats, on_calibration=on_cal)
+    app = EcuApp(
+        vehicle_bus,
+        host_bus,
+        clock,
+        cal,
+        cal_error,
+        stats=stats,
+        on_calibration=on_cal,
+        vehicle_profile=args.vehicle_profile,
+    )
     rt = None if args.no_rt else apply_realtime(priority=args.rt_priority, cpu=args.cpu)
     scheduler = rt.summary() if rt is not None else "not requested (--no-rt)"
     print(f"ecu: real-time: {scheduler}", flush=True)

@@ -23,10 +23,20 @@ The gear (for reversing out of parking spots): the gateway owns the selector. It
 `SHIFT_DELAY_S` later (a shift that loses either condition on the way is abandoned), and refused
 requests are counted (`shifts_refused`). `GW_Motion.GearEngaged` reports the gear engaged and the FMU's
 `gear` input (the drive force's sign) follows it. Wheel speeds go out as magnitudes, LongAccel signed.
+
+Vehicle profiles (the scenario's `vehicle_profile`, protocol.vehicle_can): on `bywire` the gateway
+reports the car in its GW_* frames; on `pq` the plant is the VW PQ car itself and sends what the car
+sends (protocol.vehicle_pq: Bremse_3, Bremse_5, Motor_2, Motor_3, Lenkhilfe_3, Getriebe_1, each at its
+DBC cycle time, with its XOR checksum and counter where it has them), and the gateway only its INS
+(GW_Inertial) and arm button (GW_Arm). A frame fault that names a gateway report hits the PQ messages
+that carry it (`vehicle_pq.REPORT_MESSAGES`); `corrupt` spoils a message's checksum, and a car message
+without one goes out unchanged (there is nothing a receiver could catch); `repeat` freezes a counter
+only where there is one.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import random
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -44,16 +54,24 @@ from bywire.profiles import ramp_value
 from bywire.protocol.ecu_types import EcuState, EstopMode, Gear
 from bywire.protocol.timebase import rx_time_s
 from bywire.protocol.vehicle_can import (
+    CHECKSUM_NONE,
+    BrakePressure,
+    BrakeSwitch,
     DbwCommand,
     DriverInputs,
     EstopRadio,
+    GasPedal,
+    GearReport,
+    InertialReport,
     Motion,
     RadarTarget,
+    SafetyArmButton,
     SteerReport,
     VehicleCodec,
     VehicleFrame,
     WheelSpeeds,
 )
+from bywire.protocol.vehicle_pq import report_messages
 from bywire.protocol.vehicle_rx import VehicleRx
 from bywire.vehicle_models.fmu_vehicle import FmuVehicle, VehicleInputs
 
@@ -115,8 +133,14 @@ class Plant:
         self.bus = bus
         self.t0_s = t0_s
         self.trace = trace or TraceWriter(None, PLANT_COLUMNS)
-        self.codec = VehicleCodec()
+        self.vehicle_profile = scenario.vehicle_profile
+        self.codec = VehicleCodec(profile=self.vehicle_profile)
         self.rx = VehicleRx.for_node(self.codec, "GATEWAY", max_age_cycles=3.0)
+        # Reports slower than the gateway's 10 ms (the PQ car's 20 ms ones) go out every n-th tick.
+        self._every = {
+            info.name: max(1, round(info.cycle_time_s / GATEWAY_PERIOD_S)) for info in self.codec.messages
+        }
+        self._gateway_tick = 0
         self.rng = random.Random(scenario.seed)
         self._pending: deque[tuple[float, DbwCommand]] = deque()
         self._cmd: DbwCommand | None = None
@@ -154,6 +178,8 @@ class Plant:
         self.min_gap_m = float("inf")
         self._faults: dict[str, tuple[FaultEvent, ...]] = {}
         for fault in scenario.faults:
+            if fault.frames and self.vehicle_profile == "pq":
+                fault = dataclasses.replace(fault, frames=report_messages(fault.frames))
             self._faults[fault.kind] = (*self._faults.get(fault.kind, ()), fault)
         self._cmd_monitor = self.rx.monitor("DBW_Command")
         self._frame_faults = any(k in self._faults for k in ("drop", "corrupt", "repeat", "delay", "stuck"))
@@ -410,9 +436,11 @@ class Plant:
             self._last_sent[name] = msg
         msg.timestamp = now_s
         if self._active("corrupt", t, name) is not None:
-            data = bytearray(msg.data)
-            data[0] ^= 0x5A  # a CRC that cannot match
-            msg.data = data
+            info = self.codec.info(name)
+            if info.checksum != CHECKSUM_NONE:
+                data = bytearray(msg.data)
+                data[info.checksum_byte] ^= 0x5A  # a checksum that cannot match
+                msg.data = data
         delay = self._active("delay", t, name)
         if delay is not None:
             self._delayed.append((now_s + delay.delay_ms / 1000.0, msg))
@@ -426,30 +454,40 @@ class Plant:
     def _noise(self, sigma: float) -> float:
         return self.rng.gauss(0.0, sigma) if sigma > 0.0 else 0.0
 
-    def _send_gateway(self, now_s: float, t: float) -> None:
+    def _wheel_speeds(self) -> WheelSpeeds:
         out = self.outputs
-        sc = self.scenario
-        wn = sc.wheel_speed_noise_mps
+        wn = self.scenario.wheel_speed_noise_mps
 
         def wheel(v: float) -> float:
             return max(0.0, abs(v) + self._noise(wn)) if abs(v) > 0.01 else 0.0
 
-        self._emit(
-            "GW_WheelSpeeds",
-            WheelSpeeds(
-                fl_mps=wheel(out.wheel_speed_fl_mps),
-                fr_mps=wheel(out.wheel_speed_fr_mps),
-                rl_mps=wheel(out.wheel_speed_rl_mps),
-                rr_mps=wheel(out.wheel_speed_rr_mps),
-            ),
-            now_s,
-            t,
+        return WheelSpeeds(
+            fl_mps=wheel(out.wheel_speed_fl_mps),
+            fr_mps=wheel(out.wheel_speed_fr_mps),
+            rl_mps=wheel(out.wheel_speed_rl_mps),
+            rr_mps=wheel(out.wheel_speed_rr_mps),
         )
+
+    def _inertial(self) -> InertialReport:
+        """The INS: acceleration and yaw rate with their noise."""
+        out = self.outputs
+        return InertialReport(
+            long_accel_mps2=out.accel_mps2 + self._noise(self.scenario.accel_noise_mps2),
+            yaw_rate_radps=out.yaw_rate_radps + self._noise(0.002),
+        )
+
+    def _send_gateway(self, now_s: float, t: float) -> None:
+        if self.vehicle_profile == "pq":
+            self._send_pq(now_s, t)
+            return
+        out = self.outputs
+        self._emit("GW_WheelSpeeds", self._wheel_speeds(), now_s, t)
+        ins = self._inertial()
         self._emit(
             "GW_Motion",
             Motion(
-                long_accel_mps2=out.accel_mps2 + self._noise(sc.accel_noise_mps2),
-                yaw_rate_radps=out.yaw_rate_radps + self._noise(0.002),
+                long_accel_mps2=ins.long_accel_mps2,
+                yaw_rate_radps=ins.yaw_rate_radps,
                 brake_bar_actual=out.brake_bar_actual,
                 gear_engaged=self.gear,
             ),
@@ -474,6 +512,32 @@ class Plant:
             now_s,
             t,
         )
+
+    def _send_pq(self, now_s: float, t: float) -> None:
+        """The VW PQ car's own reports and the gateway's INS and arm button (profile pq), each at its
+        DBC cycle time; the same noise draws, in the same order, as the bywire gateway's."""
+        out = self.outputs
+        tick = self._gateway_tick
+        self._gateway_tick = tick + 1
+        every = self._every
+        frames: tuple[tuple[str, VehicleFrame], ...] = (
+            ("Bremse_3", self._wheel_speeds()),
+            ("GW_Inertial", self._inertial()),
+            ("Bremse_5", BrakePressure(brake_bar_actual=out.brake_bar_actual)),
+            ("Getriebe_1", GearReport(gear_engaged=self.gear)),
+            ("Motor_2", BrakeSwitch(brake_pedal_pressed=self.driver_brake_pct(t) > 2.0)),
+            ("Motor_3", GasPedal(throttle_pedal_pct=0.0)),
+            ("GW_Arm", SafetyArmButton(safety_arm=self.safety_arm(t))),
+            (
+                "Lenkhilfe_3",
+                SteerReport(
+                    steer_angle_rad=out.steer_angle_rad_actual, steer_torque_nm=self.driver_torque_nm(t)
+                ),
+            ),
+        )
+        for name, frame in frames:
+            if tick % every[name] == 0:
+                self._emit(name, frame, now_s, t)
 
     def _send_slow(self, now_s: float, t: float) -> None:
         self._emit("ESTOP_Radio", EstopRadio(mode=self.estop_mode(t)), now_s, t)

@@ -31,6 +31,7 @@ from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.trace import TraceWriter
 from bywire.process_util import StopFlag, wait_for_t0
 from bywire.protocol.bus_url import open_bus
+from bywire.protocol.vehicle_can import VEHICLE_PROFILES
 from bywire.realtime import apply_realtime
 from bywire.stall_recorder import StallRecorder
 
@@ -45,6 +46,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trace", type=Path, help="CSV trace of the vehicle's ground truth")
     p.add_argument("--t0", help="start instant on CLOCK_MONOTONIC, or '-' to read it from stdin")
     p.add_argument("--duration", type=float, help="override the scenario's duration (s)")
+    p.add_argument(
+        "--vehicle-profile",
+        choices=VEHICLE_PROFILES,
+        help="what the vehicle CAN speaks, overriding the scenario's vehicle_profile: bywire (our "
+        "gateway's reports) or pq (a VW PQ Passat's own messages)",
+    )
     p.add_argument("--v2x", help="V2X link for the world's broadcasts, e.g. v2x://127.255.255.255:47100")
     p.add_argument(
         "--gps-fd", type=int, help="inherited file descriptor (pty master) for the GPS receiver's NMEA"
@@ -77,6 +84,8 @@ def main(args: argparse.Namespace) -> int:
         scenario = with_perception(scenario, args.perception)
     if args.duration is not None:
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    if args.vehicle_profile is not None:
+        scenario = dataclasses.replace(scenario, vehicle_profile=args.vehicle_profile)
     clock = WallClock()
     stop = StopFlag()
     bus = open_bus(args.vehicle_bus)

@@ -247,6 +247,8 @@ def run_hil(
             "--stats-json",
             str(run_dir / "ecu_stats.json"),
             "--ready-line",
+            "--vehicle-profile",
+            scenario.vehicle_profile,
         ]
         if ecu_store is not None:
             ecu_argv += ["--store", str(ecu_store)]
@@ -271,6 +273,8 @@ def run_hil(
                 "-",
                 "--duration",
                 repr(scenario.duration_s),
+                "--vehicle-profile",
+                scenario.vehicle_profile,
                 "--stalls",
                 str(run_dir / "plant_stalls.json"),
                 *plant_world_args,

@@ -22,6 +22,7 @@ from bywire.hil.world.spec import WorldSpec, parse_world
 from bywire.hil.world.urban_spec import UrbanSpec, parse_urban
 from bywire.profiles import ramp_value, step_value
 from bywire.protocol.ecu_types import EcuState, EstopMode
+from bywire.protocol.vehicle_can import VEHICLE_PROFILES
 from bywire.schema import Reader, SchemaError, yaml_line
 
 SCENARIO_SUFFIXES = (".yaml", ".yml", ".toml")
@@ -142,6 +143,9 @@ class Scenario:
     extra: dict[str, Any] = field(default_factory=dict)
     world: WorldSpec | None = None  # cooperative driving: roads, traffic, radar, GPS, V2V (hil.world.spec)
     urban: UrbanSpec | None = None  # urban: RNDF/MDF network, traffic, object list (hil.world.urban_spec)
+    # What the vehicle CAN speaks (protocol.vehicle_can.VEHICLE_PROFILES): our gateway's reports, or a
+    # VW PQ car's own messages (the plant and the ECU both speak it).
+    vehicle_profile: str = "bywire"
 
     def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
         return tuple(f for f in self.faults if f.kind in kinds)
@@ -246,6 +250,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         plant_mapping = _relative_to(source, plant_mapping)
     v0 = vehicle.number("v0_mps", default=0.0, lo=0.0, hi=70.0)
     vehicle.finish()
+    vehicle_profile = r.string("vehicle_profile", default="bywire", choices=VEHICLE_PROFILES)
 
     ecu = r.sub("ecu")
     calibration = ecu.raw("calibration")
@@ -324,6 +329,14 @@ def parse_scenario(data: Any, source: str) -> Scenario:
                 "urban",
                 "an urban scenario has its traffic in urban.vehicles (no world, no host.lead)",
             )
+    if vehicle_profile != "bywire" and world is not None:
+        # A world's host reads its odometry from our gateway's reports (GW_WheelSpeeds, GW_Motion,
+        # host.modules.io.vehicle_sensors): on a PQ bus it would run blind.
+        raise r.error(
+            "vehicle_profile",
+            f"{vehicle_profile}: a scenario with a world: section runs on the bywire profile only "
+            "(the host's odometry reads the gateway's reports)",
+        )
     r.finish()
     if fault_ref is None and faults:
         fault_ref = min(f.at_s for f in faults)
@@ -360,6 +373,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         extra=dict(extra),
         world=world,
         urban=urban,
+        vehicle_profile=vehicle_profile,
     )
     return with_perception(scenario, perception) if urban is not None else scenario
 

@@ -127,7 +127,15 @@ def run_sil(
         links.scans_send = scans_link.send
     try:
         plant = Plant(scenario, vehicle, bus(vehicle_ch), t0_s=0.0, trace=plant_trace, links=links)
-        ecu = EcuApp(bus(vehicle_ch), bus(link_ch), clock, cal, cal_error, EcuConfig())
+        ecu = EcuApp(
+            bus(vehicle_ch),
+            bus(link_ch),
+            clock,
+            cal,
+            cal_error,
+            EcuConfig(),
+            vehicle_profile=scenario.vehicle_profile,
+        )
         link = HostMaster(bus(link_ch), clock)
         host = HostAgent(
             host_inputs(scenario),
