@@ -38,12 +38,19 @@ def main_serve(args: argparse.Namespace) -> int:
 
 def add_table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", type=Path, help="write to this file instead of stdout")
+    p.add_argument(
+        "--profile",
+        choices=("bywire", "pq"),
+        default="bywire",
+        help="vehicle profile: bywire (our gateway's messages, docs/protocol.md) or pq (a VW PQ "
+        "Passat's own messages and ours beside them, docs/protocol_pq.md)",
+    )
 
 
 def main_table(args: argparse.Namespace) -> int:
     from bywire.protocol.table import render_protocol_table
 
-    text = render_protocol_table()
+    text = render_protocol_table(profile=args.profile)
     if args.output:
         args.output.write_text(text, encoding="utf-8")
     else:

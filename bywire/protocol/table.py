@@ -4,6 +4,9 @@ Data is the spec: `vehicle.dbc` defines vehicle CAN, `ecu.eds` the host <-> ECU 
 this module only renders them (plus the wire enums of `ecu_types` and the EMCY codes of
 `host_link`) as Markdown. `tests/protocol/test_protocol_table.py` compares docs/protocol.md with a fresh
 render; regenerate with `bywire protocol table > docs/protocol.md` (or `write_protocol_table`).
+The vehicle profile pq (`vehicle_pq`) renders its two DBCs instead of `vehicle.dbc`: ours
+(`vehicle_pq.dbc`) in full, and of the car's (`vw_pq.dbc`) the messages and signals the ECU reads, with
+their checksum, counter and conversion into SI (docs/protocol_pq.md, `bywire protocol table --profile pq`).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from collections.abc import Iterable, Sequence
 from enum import Enum
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import cantools
 import cantools.database
@@ -49,9 +53,12 @@ from bywire.protocol.host_link import (
     STATUS_INDEX,
     error_register_for,
 )
+from bywire.protocol.vehicle_can import CHECKSUM_NONE, VEHICLE_PROFILES, VehicleCodec, load_dbc
+from bywire.protocol.vehicle_pq import STEERING_RATIO
 
 DBC_RESOURCE = "vehicle.dbc"  # package data of bywire.protocol, read through importlib.resources
 REGENERATE = "bywire protocol table > docs/protocol.md"
+REGENERATE_PQ = "bywire protocol table --profile pq > docs/protocol_pq.md"
 
 _TYPE_NAMES = {
     dt.BOOLEAN: "BOOLEAN",
@@ -93,9 +100,11 @@ def _hex_id(frame_id: int, extended: bool) -> str:
 # --- vehicle CAN ------------------------------------------------------------------------------
 
 
-def _render_dbc(db: cantools.database.can.Database) -> list[str]:
+def _render_dbc(
+    db: cantools.database.can.Database, title: str = "## 1. Vehicle CAN (`protocol/vehicle.dbc`)"
+) -> list[str]:
     out = [
-        "## 1. Vehicle CAN (`protocol/vehicle.dbc`)",
+        title,
         "",
         "All signals little-endian (Intel); physical = raw * scale + offset. Every frame starts with a "
         "CRC8 and a 4-bit alive counter.",
@@ -156,6 +165,75 @@ def _render_dbc(db: cantools.database.can.Database) -> list[str]:
                 "comment",
             ),
             rows,
+        )
+    return out
+
+
+def _render_pq_car() -> list[str]:
+    """The car's messages of profile pq: what the ECU reads of each, and how it is protected."""
+    codec = VehicleCodec(profile="pq")
+    car = [info for info in codec.messages if info.senders == ("CAR",)]
+    out = [
+        "## 1b. The car's own messages (`protocol/vw_pq.dbc`, from opendbc, MIT)",
+        "",
+        "The VW PQ35/PQ46 powertrain CAN as opendbc's `vw_pq.dbc` describes it; the signals the ECU reads "
+        "and the field each becomes (SI units, `bywire.protocol.vehicle_pq`). Checksum: the XOR of the "
+        "other data bytes, in the byte named; counter: the 4-bit alive counter at the bit named; a "
+        "message without them is judged by its structure, ranges and age alone. Lenkhilfe_3's "
+        f"steering-wheel angle becomes the road-wheel angle over the steering ratio {STEERING_RATIO:g}.",
+        "",
+    ]
+
+    def protection(info: Any) -> tuple[str, str]:
+        checksum = "-" if info.checksum == CHECKSUM_NONE else f"XOR, byte {info.checksum_byte}"
+        counter = (
+            "-" if info.counter_start is None else f"bits {info.counter_start}..{info.counter_start + 3}"
+        )
+        return checksum, counter
+
+    out += _table(
+        ("id", "name", "DLC", "cycle", "checksum", "counter", "typed frame"),
+        (
+            (
+                f"{_hex_id(i.frame_id, False)} ({i.frame_id})",
+                i.name,
+                i.length,
+                f"{round(i.cycle_time_s * 1000)} ms",
+                *protection(i),
+                f"`{i.frame_type.__name__}`",
+            )
+            for i in car
+        ),
+    )
+    for info in car:
+        out += [f"### {_hex_id(info.frame_id, False)} {info.name}", ""]
+        if info.message.comment:
+            out += [info.message.comment, ""]
+        rows = []
+        for sig in info.signals:
+            dbc_sig = info.message.get_signal_by_name(sig.signal)
+            if sig.kind == "mapped":
+                meaning = ", ".join(f"{raw}={member.name}" for raw, member in sig.mapping) + ", else refused"
+            elif sig.kind == "bool":
+                meaning = "1 = true"
+            else:
+                sign = f", sign bit {sig.sign_start} (1 = negative)" if sig.kind == "magnitude" else ""
+                meaning = f"raw * {_num(sig.scale)} {sig.unit}{sign}"
+            rows.append(
+                (
+                    sig.signal,
+                    dbc_sig.start,
+                    dbc_sig.length,
+                    _num(dbc_sig.scale),
+                    dbc_sig.unit or "",
+                    f"{_num(dbc_sig.minimum)} .. {_num(dbc_sig.maximum)}",
+                    f"`{info.frame_type.__name__}.{sig.field}`",
+                    meaning,
+                    dbc_sig.comment or "",
+                )
+            )
+        out += _table(
+            ("signal", "start bit", "bits", "scale", "unit", "range", "field", "field value", "comment"), rows
         )
     return out
 
@@ -432,11 +510,19 @@ def _render_enums() -> list[str]:
 
 
 def render_protocol_table(
-    dbc_path: str | Path | None = None, eds_path: str | Path | None = None, node_id: int = ECU_NODE_ID
+    dbc_path: str | Path | None = None,
+    eds_path: str | Path | None = None,
+    node_id: int = ECU_NODE_ID,
+    profile: str = "bywire",
 ) -> str:
     """The whole protocol table as Markdown (deterministic: no dates, sorted everywhere).
 
-    None paths read the packaged vehicle.dbc / ecu.eds through importlib.resources."""
+    None paths read the packaged vehicle.dbc / ecu.eds through importlib.resources; `profile` "pq"
+    renders the PQ profile's vehicle CAN (our `vehicle_pq.dbc`, or `dbc_path`, and the car's messages)."""
+    if profile not in VEHICLE_PROFILES:
+        raise ValueError(f"vehicle profile {profile!r}: expected one of {', '.join(VEHICLE_PROFILES)}")
+    if profile == "pq":
+        return _render_pq_table(dbc_path, eds_path, node_id)
     if dbc_path is None:
         dbc_text = resources.files("bywire.protocol").joinpath(DBC_RESOURCE).read_text(encoding="utf-8")
     else:
@@ -453,6 +539,29 @@ def render_protocol_table(
         "",
     ]
     lines += _render_dbc(db)
+    lines += _render_eds(od, node_id)
+    lines += _render_enums()
+    while lines and lines[-1] == "":
+        lines.pop()
+    return "\n".join(lines) + "\n"
+
+
+def _render_pq_table(dbc_path: str | Path | None, eds_path: str | Path | None, node_id: int) -> str:
+    own = load_dbc(Path(dbc_path) if dbc_path is not None else None, "vehicle_pq.dbc")
+    od = load_ecu_od(node_id, eds_path)
+    lines = [
+        "# bywire protocol table, vehicle profile pq",
+        "",
+        "Generated from `protocol/vehicle_pq.dbc`, `protocol/vw_pq.dbc` and `protocol/ecu.eds` by "
+        f"`bywire.protocol.table`. Do not edit: regenerate with `{REGENERATE_PQ}`.",
+        "",
+        "A VW PQ35/PQ46 Passat reports itself in its own messages (section 1b); what stays bywire's own "
+        "(section 1a) sits on frame ids the PQ bus does not use. The host <-> ECU link is the same in "
+        "both profiles.",
+        "",
+    ]
+    lines += _render_dbc(own, "## 1a. bywire's messages on the PQ bus (`protocol/vehicle_pq.dbc`)")
+    lines += _render_pq_car()
     lines += _render_eds(od, node_id)
     lines += _render_enums()
     while lines and lines[-1] == "":

@@ -82,3 +82,50 @@ def test_render_reflects_the_eds(tmp_path: Path) -> None:
     assert changed.read_text() != eds
     text = render_protocol_table(eds_path=changed)
     assert "NMT state u8, every 50 ms (0x1017)" in text
+
+
+# -- vehicle profile pq ------------------------------------------------------------------------------
+
+DOC_PQ = DOC.parent / "protocol_pq.md"
+
+
+def test_docs_protocol_pq_md_is_up_to_date() -> None:
+    from bywire.protocol.table import REGENERATE_PQ
+
+    assert DOC_PQ.is_file(), f"{DOC_PQ} is missing: run `{REGENERATE_PQ}`"
+    assert DOC_PQ.read_text(encoding="utf-8") == render_protocol_table(profile="pq"), (
+        f"{DOC_PQ} differs from protocol/vehicle_pq.dbc + vw_pq.dbc: regenerate it with `{REGENERATE_PQ}`"
+    )
+
+
+@pytest.mark.parametrize(
+    "row",
+    [
+        # ours, moved off the PQ engine message MSG_1 (0x100)
+        "| 0x0F1 (241) | DBW_Command | ECU | 8 | 10 ms |",
+        "| 0x0F8 (248) | GW_Inertial | GATEWAY | 8 | 10 ms |",
+        # the car's, with its protection and the typed frame it becomes
+        "| 0x0D0 (208) | Lenkhilfe_3 | 6 | 10 ms | XOR, byte 0 | bits 12..15 | `SteerReport` |",
+        "| 0x4A8 (1192) | Bremse_5 | 8 | 20 ms | XOR, byte 7 | bits 52..55 | `BrakePressure` |",
+        "| 0x4A0 (1184) | Bremse_3 | 8 | 10 ms | - | - | `WheelSpeeds` |",
+        "| GE1_Wahl_Pos | 12 | 4 | 1 |  | 0 .. 15 | `GearReport.gear_engaged` "
+        "| 5=DRIVE, 7=REVERSE, else refused |",
+        "| MO3_Pedalwert | 16 | 8 | 0.4 | % | 0 .. 101.6 | `GasPedal.throttle_pedal_pct` | raw * 0.4 % |",
+    ],
+)
+def test_pq_table_documents_the_profile(row: str) -> None:
+    assert row in render_protocol_table(profile="pq")
+
+
+def test_cli_prints_the_pq_table(capsys: pytest.CaptureFixture[str]) -> None:
+    from bywire.cli import main
+
+    assert main(["protocol", "table", "--profile", "pq"]) == 0
+    out = capsys.readouterr().out
+    assert out == render_protocol_table(profile="pq")
+    assert "bywire protocol table, vehicle profile pq" in out and "0x100 (256) | DBW_Command" not in out
+
+
+def test_an_unknown_profile_is_refused() -> None:
+    with pytest.raises(ValueError, match="vehicle profile 'mqb': expected one of bywire, pq"):
+        render_protocol_table(profile="mqb")
