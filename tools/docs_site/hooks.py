@@ -1,8 +1,8 @@
 """MkDocs hooks (`mkdocs.yml` `hooks:`): the generated pages join the hand-written ones of docs/.
 
 The pages themselves are written by `reference_pages`; here they are only handed over, replacing any
-file of the same name in docs/ (docs/protocol.md, kept for readers of the repository, is rendered anew
-so the site never shows a stale copy).
+file of the same name in docs/ (docs/protocol.md and docs/protocol_pq.md, kept for readers of the
+repository, are rendered anew so the site never shows a stale copy).
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ DOCS = ROOT / "docs"
 API_PACKAGES = ("bywire.protocol", "bywire.ecu", "bywire.host.runtime", "bywire.hil")
 
 PROTOCOL_PAGE = "protocol.md"
+PROTOCOL_PQ_PAGE = "protocol_pq.md"  # the vehicle profile pq's table
 SCENARIO_PAGE = "reference/scenario_schema.md"
 HOST_CONFIG_PAGE = "reference/host_config_schema.md"
 CALIBRATION_PAGE = "reference/calibration_limits.md"
@@ -69,10 +70,10 @@ def api_page(module: str) -> str:
 # --- the protocol table ------------------------------------------------------------------------------
 
 
-def protocol_page() -> str:
+def protocol_page(profile: str = "bywire") -> str:
     from bywire.protocol.table import render_protocol_table
 
-    return render_protocol_table()
+    return render_protocol_table(profile=profile)
 
 
 # --- the schemas ---------------------------------------------------------------------------------------
@@ -328,10 +329,10 @@ def calibration_limits_page() -> str:
 
 
 def guides() -> list[tuple[str, str]]:
-    """The hand-written pages of docs/ (file, title from its first heading), the protocol table aside."""
+    """The hand-written pages of docs/ (file, title from its first heading), the protocol tables aside."""
     out = []
     for path in sorted(DOCS.glob("*.md")):
-        if path.name == PROTOCOL_PAGE:
+        if path.name in (PROTOCOL_PAGE, PROTOCOL_PQ_PAGE):
             continue
         first = next((ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.startswith("# ")), "")
         out.append((path.name, first[2:].strip() or path.stem))
@@ -341,6 +342,7 @@ def guides() -> list[tuple[str, str]]:
 def reference_pages() -> list[tuple[str, str]]:
     return [
         (PROTOCOL_PAGE, "Protocol table"),
+        (PROTOCOL_PQ_PAGE, "Protocol table, vehicle profile pq"),
         (SCENARIO_PAGE, "Scenario file schema"),
         (HOST_CONFIG_PAGE, "Host configuration schema"),
         (CALIBRATION_PAGE, "Calibration limits"),
@@ -375,6 +377,7 @@ def generated_pages() -> dict[str, str]:
     pages = {
         "index.md": index_page(),
         PROTOCOL_PAGE: protocol_page(),
+        PROTOCOL_PQ_PAGE: protocol_page("pq"),
         SCENARIO_PAGE: scenario_schema_page(),
         HOST_CONFIG_PAGE: host_config_schema_page(),
         CALIBRATION_PAGE: calibration_limits_page(),
