@@ -149,7 +149,7 @@ def test_cli_refuses_a_bad_scenario_with_the_field(tmp_path: Path) -> None:
         [sys.executable, "-m", "bywire", "hil", "run", str(path)], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 2
-    assert f"{path}: fualts: unknown key" in proc.stderr
+    assert f"{path}:3: fualts: unknown key" in proc.stderr  # file:line: what
 
 
 def test_a_ready_made_fmu_without_mapping_is_refused(tmp_path: Path) -> None:
