@@ -19,76 +19,38 @@ between the 5 % and 95 % points of the cumulative power, i.e. the central band h
 leader's acceleration power. Outside it the leader hardly excites the string and |H| is noise / noise.
 Acceleration is used for the band even when the ratio is computed on speed: both give the same H.
 
-Loader: OpenACC ZalaZone (5 metadata lines, then Time, Speed<k>, E<k>, ... IVS<k>), the OpenACC AstaZero
-cut (Time, Speed_1..Speed_N) and the CARMA FHWA 2018 table (<vehicle>_avg_speed_driven_wheels,
-<vehicle>_acceleration) are told apart by their header. OpenACC has no acceleration; it is
-differentiated from the GNSS speed after a zero-phase 2nd-order Butterworth low-pass at 2 Hz (the band of
-interest ends at 1 Hz; the same linear filter on both vehicles cancels in H anyway, it only removes noise
-from the band edges). Gaps of missing samples up to MAX_GAP_S are interpolated linearly; a longer gap cuts
-the record, keeping the longest stretch where every vehicle has data (the cut is reported in
-Platoon.notes). A vehicle without any data is dropped (noted); in OpenACC the platoon order is the
-vehicle index, so a pair may then span a missing car, which the pair names show.
+Loader: `host.platoon.platoon_csv.load_platoon_csv` (every published OpenACC and CARMA layout, told apart
+by the header; gaps, row order and the acceleration OpenACC lacks are handled there, see its notes).
 """
 
 from __future__ import annotations
 
-import csv
-import math
-import re
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import numpy.typing as npt
 from scipy import signal as sps
 
-FloatArray = npt.NDArray[np.float64]
+from bywire.host.platoon.platoon_csv import (
+    ACCEL_LOWPASS_HZ,
+    MAX_GAP_S,
+    MIN_DURATION_S,
+    FloatArray,
+    Platoon,
+    PlatoonCsvError,
+    Vehicle,
+    differentiate_speed,
+    load_platoon_csv,
+)
+
 SignalName = Literal["accel", "speed"]
 
-# Longest run of missing samples bridged by linear interpolation: 1 s is ~ one period of the fastest
-# motion in the band (1 Hz); longer holes would invent the dynamics we are trying to measure.
-MAX_GAP_S = 1.0
-# Shortest record worth a spectral estimate: four 50 s segments would be ideal, but the AstaZero cut is
-# 30 s long; below 20 s the lowest resolvable frequency (1/T) climbs above most of the excited band.
-MIN_DURATION_S = 20.0
 # Welch segment length: 0.02 Hz resolution, enough to resolve a |H| peak of a car-following loop
 # (bandwidths ~0.1-0.5 Hz) while averaging >= 10 segments on a 5 min record. Shorter records use half
 # their length (see _welch_nperseg).
 WELCH_SEGMENT_S = 50.0
 DEFAULT_SEARCH_BAND_HZ = (0.01, 1.0)
 BAND_POWER_FRACTION = 0.9
-ACCEL_LOWPASS_HZ = 2.0
-
-OPENACC_METADATA_LINES = 5
-_CARMA_VEHICLES = ("leader", "follower1", "follower2", "follower3", "follower4")
-
-
-class PlatoonCsvError(ValueError):
-    """A platoon CSV that cannot be read; the message names file, line and column."""
-
-
-@dataclass(frozen=True)
-class Vehicle:
-    name: str
-    speed_mps: FloatArray
-    accel_mps2: FloatArray
-    accel_from_file: bool
-
-
-@dataclass(frozen=True)
-class Platoon:
-    """Vehicles leader first, all sampled on the common uniform grid time_s."""
-
-    source: str
-    layout: str
-    time_s: FloatArray
-    vehicles: tuple[Vehicle, ...]
-    notes: tuple[str, ...] = ()
-
-    @property
-    def sample_period_s(self) -> float:
-        return float(self.time_s[1] - self.time_s[0])
 
 
 @dataclass(frozen=True)
@@ -109,236 +71,6 @@ class Result:
     freq_hz: FloatArray
     leader_psd: FloatArray  # leader's PSD of `signal`, for plotting
     pairs: tuple[PairResult, ...]
-
-
-# ---------------------------------------------------------------------------------------------- loading
-
-
-def _parse_float(text: str, path: Path, line: int, column: str) -> float:
-    text = text.strip()
-    if text == "":
-        return math.nan
-    try:
-        return float(text)
-    except ValueError:
-        raise PlatoonCsvError(f"{path}:{line}: column {column!r}: not a number: {text!r}") from None
-
-
-def _read_table(
-    path: Path,
-    rows: list[list[str]],
-    header: list[str],
-    first_line: int,
-    wanted: dict[str, str],
-    notes: list[str],
-) -> tuple[FloatArray, dict[str, FloatArray]]:
-    """Parse the columns named in `wanted` (column -> key); return time and key -> values (NaN = missing).
-    Appends what it repaired to `notes`."""
-    index = {name.strip(): j for j, name in enumerate(header)}
-    for col in ["Time", *wanted]:
-        if col not in index:
-            raise PlatoonCsvError(f"{path}:{first_line - 1}: header lacks column {col!r}")
-    n_cols = len(header)
-    times: list[float] = []
-    lines: list[int] = []
-    values: dict[str, list[float]] = {key: [] for key in wanted.values()}
-    for k, row in enumerate(rows):
-        line = first_line + k
-        if not row or all(not f.strip() for f in row):
-            continue  # blank line (e.g. at the end of the file)
-        if len(row) < n_cols:
-            raise PlatoonCsvError(
-                f"{path}:{line}: {len(row)} fields, header has {n_cols} (truncated row; "
-                f"first missing column {header[len(row)].strip()!r})"
-            )
-        t = _parse_float(row[index["Time"]], path, line, "Time")
-        if math.isnan(t):
-            raise PlatoonCsvError(f"{path}:{line}: column 'Time': empty")
-        times.append(t)
-        lines.append(line)
-        for col, key in wanted.items():
-            values[key].append(_parse_float(row[index[col]], path, line, col))
-    if len(times) < 2:
-        raise PlatoonCsvError(f"{path}: fewer than two data rows")
-    t_s = np.asarray(times)
-    # The CARMA table holds a few rows stored out of time order (e.g. the row for 45.0 s between 42.5 and
-    # 42.6 s) whose values fit their time stamp: sort them back into place and say so. Two rows with the
-    # same time stamp cannot be ordered and are an error.
-    order = np.argsort(t_s, kind="stable")
-    n_moved = int((np.diff(t_s) < 0).sum())
-    if n_moved:
-        first_bad = lines[int(np.argmax(np.diff(t_s) <= 0)) + 1]
-        notes.append(f"{n_moved} breaks in time order, rows sorted back (first at line {first_bad})")
-    t_sorted = t_s[order]
-    dup = np.flatnonzero(np.diff(t_sorted) <= 0)
-    if dup.size:
-        k = int(order[dup[0] + 1])
-        raise PlatoonCsvError(f"{path}:{lines[k]}: column 'Time': {t_s[k]} repeats an earlier time stamp")
-    return t_sorted, {key: np.asarray(v)[order] for key, v in values.items()}
-
-
-def _resample(
-    t_raw_s: FloatArray, x_raw: FloatArray, grid_s: FloatArray, max_gap_s: float
-) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Linear interpolation onto grid_s; a grid point is invalid where the bracketing valid raw samples are
-    further apart than max_gap_s (a long hole) or outside the valid span."""
-    ok = np.isfinite(x_raw)
-    t_ok, x_ok = t_raw_s[ok], x_raw[ok]
-    if t_ok.size < 2:
-        return np.full(grid_s.shape, math.nan), np.zeros(grid_s.shape, dtype=bool)
-    x = np.interp(grid_s, t_ok, x_ok)
-    j = np.clip(np.searchsorted(t_ok, grid_s), 1, t_ok.size - 1)
-    # A tolerance of a thousandth of a step keeps regular samples (gap == one step) valid despite rounding.
-    valid = (
-        (t_ok[j] - t_ok[j - 1] <= max_gap_s + 1e-9) & (grid_s >= t_ok[0] - 1e-9) & (grid_s <= t_ok[-1] + 1e-9)
-    )
-    return x, valid
-
-
-def _longest_true_run(mask: npt.NDArray[np.bool_]) -> tuple[int, int]:
-    """[start, stop) of the longest run of True."""
-    best = (0, 0)
-    start = -1
-    for k, m in enumerate([*mask.tolist(), False]):
-        if m and start < 0:
-            start = k
-        elif not m and start >= 0:
-            if k - start > best[1] - best[0]:
-                best = (start, k)
-            start = -1
-    return best
-
-
-def differentiate_speed(speed_mps: FloatArray, dt_s: float) -> FloatArray:
-    """Acceleration from a speed record: zero-phase low-pass (ACCEL_LOWPASS_HZ) then central differences."""
-    nyquist_hz = 0.5 / dt_s
-    if nyquist_hz > ACCEL_LOWPASS_HZ and speed_mps.size > 15:
-        b, a = sps.butter(2, ACCEL_LOWPASS_HZ / nyquist_hz)
-        speed_mps = sps.filtfilt(b, a, speed_mps)
-    return np.asarray(np.gradient(speed_mps, dt_s), dtype=np.float64)
-
-
-def _build_platoon(
-    path: Path,
-    layout: str,
-    t_raw_s: FloatArray,
-    names: list[str],
-    speeds: list[FloatArray],
-    accels: list[FloatArray | None],
-    notes: list[str],
-) -> Platoon:
-    dt_s = float(np.median(np.diff(t_raw_s)))
-    grid_s = t_raw_s[0] + dt_s * np.arange(math.floor((t_raw_s[-1] - t_raw_s[0]) / dt_s + 1e-6) + 1)
-    kept: list[tuple[str, FloatArray, FloatArray | None]] = []
-    valid_all = np.ones(grid_s.shape, dtype=bool)
-    for name, v_raw, a_raw in zip(names, speeds, accels, strict=True):
-        if not np.isfinite(v_raw).any():
-            notes.append(f"vehicle {name}: no speed samples, dropped")
-            continue
-        v, ok = _resample(t_raw_s, v_raw, grid_s, MAX_GAP_S)
-        a: FloatArray | None = None
-        if a_raw is not None:
-            a, ok_a = _resample(t_raw_s, a_raw, grid_s, MAX_GAP_S)
-            ok &= ok_a
-        if not ok.all():
-            notes.append(f"vehicle {name}: {int((~ok).sum())} samples in gaps > {MAX_GAP_S} s")
-        valid_all &= ok
-        kept.append((name, v, a))
-    if len(kept) < 2:
-        raise PlatoonCsvError(f"{path}: fewer than two vehicles with data")
-    start, stop = _longest_true_run(valid_all)
-    if stop - start < grid_s.size:
-        notes.append(
-            f"record cut to {grid_s[start] - grid_s[0]:.1f}-{grid_s[stop - 1] - grid_s[0]:.1f} s "
-            f"(longest stretch without a gap > {MAX_GAP_S} s in any vehicle)"
-        )
-    if (stop - start - 1) * dt_s < MIN_DURATION_S:
-        raise PlatoonCsvError(
-            f"{path}: only {(stop - start - 1) * dt_s:.1f} s without gaps > {MAX_GAP_S} s, "
-            f"need {MIN_DURATION_S} s"
-        )
-    vehicles = []
-    for name, v, a in kept:
-        v = v[start:stop]
-        from_file = a is not None
-        acc = a[start:stop] if a is not None else differentiate_speed(v, dt_s)
-        vehicles.append(Vehicle(name, v, acc, from_file))
-    # Re-derive the time axis from the index: subtracting large absolute stamps (12643 s) leaves float dust.
-    time_s = dt_s * np.arange(stop - start, dtype=np.float64)
-    return Platoon(str(path), layout, time_s, tuple(vehicles), tuple(notes))
-
-
-def load_platoon_csv(path: str | Path) -> Platoon:
-    """Load an OpenACC (ZalaZone or AstaZero cut) or CARMA platoon CSV; layout detected from the header."""
-    path = Path(path)
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
-    notes: list[str] = []
-    if not rows:
-        raise PlatoonCsvError(f"{path}:1: empty file")
-    first = [f.strip() for f in rows[0]]
-
-    # CARMA also starts with a 'Date' column, so it is recognised first, by its per-vehicle columns.
-    if first and first[0] == "Date" and "Time" not in first and len(rows) > OPENACC_METADATA_LINES:
-        # OpenACC ZalaZone: Date / Vehicle_order / Number_of_vehicles / ACC / Distance_setting, then header.
-        order = (
-            [f.strip() for f in rows[1][1:] if f.strip()] if rows[1] and rows[1][0] == "Vehicle_order" else []
-        )
-        header = [f.strip() for f in rows[OPENACC_METADATA_LINES]]
-        if not header or header[0] != "Time":
-            raise PlatoonCsvError(
-                f"{path}:{OPENACC_METADATA_LINES + 1}: expected the OpenACC header 'Time,Speed1,...', "
-                f"got {','.join(header[:3])!r}"
-            )
-        indices = sorted(int(m.group(1)) for c in header if (m := re.fullmatch(r"Speed(\d+)", c)))
-        t, cols = _read_table(
-            path,
-            rows[OPENACC_METADATA_LINES + 1 :],
-            header,
-            OPENACC_METADATA_LINES + 2,
-            {f"Speed{k}": str(k) for k in indices},
-            notes,
-        )
-        names = [f"{k}:{order[k - 1]}" if k <= len(order) else str(k) for k in indices]
-        return _build_platoon(
-            path, "openacc_zalazone", t, names, [cols[str(k)] for k in indices], [None] * len(indices), notes
-        )
-
-    if first and first[0] == "Time" and any(re.fullmatch(r"Speed_\d+", c) for c in first):
-        indices = sorted(int(m.group(1)) for c in first if (m := re.fullmatch(r"Speed_(\d+)", c)))
-        t, cols = _read_table(path, rows[1:], first, 2, {f"Speed_{k}": str(k) for k in indices}, notes)
-        return _build_platoon(
-            path,
-            "openacc_astazero",
-            t,
-            [str(k) for k in indices],
-            [cols[str(k)] for k in indices],
-            [None] * len(indices),
-            notes,
-        )
-
-    if "Time" in first and "leader_acceleration" in first:
-        present = [v for v in _CARMA_VEHICLES if f"{v}_avg_speed_driven_wheels" in first]
-        wanted: dict[str, str] = {}
-        for v in present:
-            wanted[f"{v}_avg_speed_driven_wheels"] = f"{v}_v"
-            wanted[f"{v}_acceleration"] = f"{v}_a"
-        t, cols = _read_table(path, rows[1:], first, 2, wanted, notes)
-        return _build_platoon(
-            path,
-            "carma",
-            t,
-            present,
-            [cols[f"{v}_v"] for v in present],
-            [cols[f"{v}_a"] for v in present],
-            notes,
-        )
-
-    raise PlatoonCsvError(
-        f"{path}:1: unknown platoon CSV layout (expected OpenACC ZalaZone 'Date,...' metadata, "
-        f"OpenACC AstaZero 'Time,Speed_1,...' or CARMA '...,leader_acceleration,...'); "
-        f"got {','.join(first[:4])!r}"
-    )
 
 
 # ---------------------------------------------------------------------------------------------- estimate
@@ -492,3 +224,26 @@ def band_limited_noise(
     b, a = sps.butter(4, [band_hz[0] * 2 * dt_s, band_hz[1] * 2 * dt_s], btype="band")
     x = sps.filtfilt(b, a, rng.normal(size=n))
     return np.asarray(rms_mps2 * x / np.std(x), dtype=np.float64)
+
+
+# The loader moved to platoon_csv; its names stay importable from here for the estimator's callers.
+__all__ = [
+    "ACCEL_LOWPASS_HZ",
+    "MAX_GAP_S",
+    "MIN_DURATION_S",
+    "FloatArray",
+    "PairResult",
+    "Platoon",
+    "PlatoonCsvError",
+    "Result",
+    "SignalName",
+    "Vehicle",
+    "band_limited_noise",
+    "cth_follower_tf",
+    "differentiate_speed",
+    "excited_band",
+    "hinf_norm",
+    "linear_chain_platoon",
+    "load_platoon_csv",
+    "string_stability",
+]

@@ -114,13 +114,13 @@ def _zalazone_csv(path: Path, n: int = 400, gap: tuple[int, int] | None = None) 
 
 def test_layout_detection(tmp_path: Path) -> None:
     p = load_platoon_csv(_astazero_csv(tmp_path / "a.csv"))
-    assert p.layout == "openacc_astazero"
+    assert p.layout == "openacc_cut"
     assert [v.name for v in p.vehicles] == ["1", "2", "3"]
     assert p.sample_period_s == pytest.approx(DT_S)
     # Differentiated acceleration of 20 + sin(t) is cos(t) (the 2 Hz low-pass barely touches 0.16 Hz).
     assert np.allclose(p.vehicles[0].accel_mps2[20:-20], np.cos(p.time_s[20:-20]), atol=0.02)
     z = load_platoon_csv(_zalazone_csv(tmp_path / "z.csv"))
-    assert z.layout == "openacc_zalazone"
+    assert z.layout == "openacc_jrc"
     assert [v.name for v in z.vehicles] == ["1:A", "2:B"]
     assert z.time_s[0] == 0.0
 
