@@ -3,10 +3,11 @@ Linux says of a thread (/proc: its CPU time and scheduler state)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -79,6 +80,28 @@ def task_cpu_time_s(pid: str | int, tid: int) -> float | None:
         return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0]) * 1e-9
     except (OSError, IndexError, ValueError):
         return None
+
+
+def process_cpu_time_s(pid: str | int) -> float | None:
+    """Time all threads of process `pid` have spent on a CPU, in seconds (the sum of their
+    schedstat: nanosecond resolution); None where /proc cannot be read."""
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return None
+    times = [task_cpu_time_s(pid, int(t)) for t in tids]
+    known = [t for t in times if t is not None]
+    return sum(known) if known else None
+
+
+def runnable_tasks(pid: str | int = "self", exclude: Collection[int] = ()) -> int | None:
+    """How many threads of process `pid` are runnable (R) now, leaving out the native thread ids in
+    `exclude`; None where /proc cannot be read."""
+    try:
+        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except (OSError, ValueError):
+        return None
+    return sum(1 for t in tids if t not in exclude and task_state(pid, t) == "R")
 
 
 def task_state(pid: str | int, tid: int) -> str | None:

@@ -19,12 +19,17 @@ run must come out the same on a busy machine: a step that never blocked (no volu
 switch, `getrusage(RUSAGE_THREAD)`) but lost the CPU to another process or to the hypervisor (VM
 steal) is charged its own CPU time (`time.thread_time`) for the deadline, not the wall time it
 waited; a step that slept, waited on I/O or on a lock is charged the wall time, as before. For
-the same reason the watchdog judges a late step only once it is asleep (blocked: a deadlock or an
-endless wait) or has had the timeout's worth of CPU (spinning: a hang); a thread that is runnable
-but has not had that much CPU was starved, not stuck, and is watched on. A CPU-bound step that is
-really too slow still misses on its own CPU time. One limit: a voluntary switch is a voluntary
-switch, and the GIL handed to the watchdog thread (it wakes every `POLL_S`) during a long step is
-one, so such a step is charged its wall time as before.
+the same reason the watchdog judges a late step only once the process is asleep (blocked: a
+deadlock or an endless wait) or the step has had the timeout's worth of CPU (spinning: a hang); a
+step that is runnable but has not had that much CPU was starved, not stuck, and is watched on. A
+step's CPU is the process's: its helper threads work for it (scipy's FFT with `workers=-1`, a BLAS
+pool), and the main thread waiting on them sleeps in a join. So the watchdog counts the process's
+CPU time (`time.process_time`, every thread; its own costs nothing) and calls the step runnable while
+any thread but its own is (judged by the main thread alone, a C-space convolution starved on a
+loaded machine was a "deadlock at 0% of a CPU", interrupted and restarted six times in one run). A
+CPU-bound step that is really too slow still misses on its own CPU time. One limit: a voluntary
+switch is a voluntary switch, and the GIL handed to the watchdog thread (it wakes every `POLL_S`)
+during a long step is one, so such a step is charged its wall time as before.
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ from bywire.host.runtime.worker import (
     WorkerState,
     complete_on_record,
 )
-from bywire.process_util import task_cpu_time_s, task_state
+from bywire.process_util import runnable_tasks
 
 POLL_S = 0.05
 SHARE_SAMPLE_S = 0.005
@@ -70,14 +75,14 @@ class _Watchdog:
 
     def __init__(self) -> None:
         self.main_ident = threading.main_thread().ident
-        self.main_native = threading.get_native_id()
-        # (wall start, timeout, worker, the main thread's CPU time at the start) of the step running
+        # (wall start, timeout, worker, the process's CPU time at the start) of the step running
         self.armed: tuple[float, float, InlineWorker, float] | None = None
         self.firing = False
         previous = signal.getsignal(INTERRUPT_SIGNAL)
         if previous not in (signal.SIG_DFL, signal.SIG_IGN, None):
             raise RuntimeError(f"signal {INTERRUPT_SIGNAL.name} is already in use; lockstep needs it")
         signal.signal(INTERRUPT_SIGNAL, self._on_signal)
+        self.watch_native: int | None = None
         threading.Thread(target=self._watch, name="lockstep-watchdog", daemon=True).start()
 
     @classmethod
@@ -92,6 +97,7 @@ class _Watchdog:
             raise StepInterrupted
 
     def _watch(self) -> None:
+        self.watch_native = threading.get_native_id()
         while True:
             time.sleep(POLL_S)
             armed = self.armed
@@ -100,12 +106,12 @@ class _Watchdog:
             worker = armed[2]
             if self._starved(armed[3], armed[1]):
                 continue
-            wall0, cpu0 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
+            wall0, cpu0 = time.perf_counter(), time.process_time()
             time.sleep(SHARE_SAMPLE_S)  # may take longer: a spinning step holds the GIL
-            wall1, cpu1 = time.perf_counter(), task_cpu_time_s("self", self.main_native)
+            wall1, cpu1 = time.perf_counter(), time.process_time()
             if self.armed is not armed:
                 continue  # it finished after all
-            if cpu0 is not None and cpu1 is not None and wall1 > wall0:
+            if wall1 > wall0:
                 worker.hang_cpu_share = min(1.0, (cpu1 - cpu0) / (wall1 - wall0))
             self.firing = True
             assert self.main_ident is not None
@@ -114,11 +120,12 @@ class _Watchdog:
     def _starved(self, step_cpu0_s: float, timeout_s: float) -> bool:
         """Late on the wall clock, yet runnable and short of the timeout's worth of CPU: the step
         was kept off the CPU (another process, VM steal; then the GIL, which the starved step held),
-        it is not stuck. A spinning step gets there on its own CPU time; a blocked one sleeps."""
-        cpu = task_cpu_time_s("self", self.main_native)
-        return (
-            cpu is not None and cpu - step_cpu0_s < timeout_s and task_state("self", self.main_native) == "R"
-        )
+        it is not stuck. A spinning step gets there on its CPU time; a blocked one sleeps, and so do
+        all the threads it could be waiting for (see the module docstring)."""
+        if time.process_time() - step_cpu0_s >= timeout_s:
+            return False
+        runnable = runnable_tasks("self", exclude=() if self.watch_native is None else (self.watch_native,))
+        return bool(runnable)
 
 
 class InlineWorker(WorkerState):
@@ -149,9 +156,8 @@ class InlineWorker(WorkerState):
         except BaseException as exc:
             self._fail("exception", exc, "start")
 
-    def _guarded(self, fn: Callable[[], Any], cpu0_s: float | None = None) -> Any:
-        cpu0 = time.thread_time() if cpu0_s is None else cpu0_s
-        self._watchdog.armed = (time.perf_counter(), self._timeout_s, self, cpu0)
+    def _guarded(self, fn: Callable[[], Any]) -> Any:
+        self._watchdog.armed = (time.perf_counter(), self._timeout_s, self, time.process_time())
         try:
             return fn()
         finally:
@@ -180,7 +186,7 @@ class InlineWorker(WorkerState):
             module.step(self.ctx)
 
         try:
-            self._guarded(step, cpu0)
+            self._guarded(step)
         except StepInterrupted:
             self.ctx.fenced = True
             return True  # busy from now on, like a thread that never came back

@@ -43,7 +43,7 @@ from bywire.host.runtime.worker import (
     complete_on_record,
     describe_exception,
 )
-from bywire.process_util import task_cpu_time_s, task_state
+from bywire.process_util import process_cpu_time_s, runnable_tasks, task_state
 
 # (kind, parameters) -> a fresh module; a module-level function, so that it reaches the child by name.
 ModuleBuilder = Callable[[str, dict[str, Any]], Module]
@@ -367,10 +367,15 @@ class ProcessWorker(WorkerState):
         return self.process is not None and self.process.is_alive()
 
     def cpu_time_s(self) -> float | None:
-        return None if self.pid is None else task_cpu_time_s(self.pid, self.pid)
+        # every thread of the child: a step's helper threads (an FFT's workers, a BLAS pool) work for
+        # it while its own thread waits for them in a join
+        return None if self.pid is None else process_cpu_time_s(self.pid)
 
     def run_state(self) -> str | None:
-        return None if self.pid is None else task_state(self.pid, self.pid)
+        """R while any thread of the child is runnable (the step or a helper it waits for)."""
+        if self.pid is None:
+            return None
+        return "R" if runnable_tasks(self.pid) else task_state(self.pid, self.pid)
 
     def abandon(self, cancel: bool = False) -> None:
         """Kill the child (hung, or its instance given up) and close the streams, off the scheduler."""

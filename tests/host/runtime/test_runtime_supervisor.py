@@ -57,6 +57,14 @@ class Counter(Module):
             lock = threading.Lock()
             lock.acquire()
             lock.acquire()
+        if "helper_spin_at" in self.fail and t >= self.fail["helper_spin_at"]:
+            self.fail.pop("helper_spin_at")
+            # the step waits in a join for a helper thread that works for it (as scipy's FFT with
+            # workers=-1 does); the helper gives up after 2 s so that no test leaves it burning
+            end = time.monotonic() + 2.0
+            helper = threading.Thread(target=_spin_until, args=(end,), name="step-helper", daemon=True)
+            helper.start()
+            helper.join()
         if "slow_from" in self.fail and t >= self.fail["slow_from"]:
             time.sleep(self.fail["slow_s"])
         if "mute_from" in self.fail and t >= self.fail["mute_from"]:
@@ -65,6 +73,14 @@ class Counter(Module):
             ctx.new(self.src)
         self.n += 1
         ctx.publish(self.out, Tick(t, self.n))
+
+
+_HELPERS_STOP = threading.Event()
+
+
+def _spin_until(end_s: float) -> None:
+    while time.monotonic() < end_s and not _HELPERS_STOP.is_set():
+        pass
 
 
 def make_runtime(
@@ -149,6 +165,22 @@ def test_hang_and_deadlock_are_told_apart_and_detected_within_the_bound(
     time.sleep(0.05)
     zombies = [t for t in threading.enumerate() if t.name == "module-a#1" and t not in before]
     assert len(zombies) == (1 if (cause, where) == ("deadlock", "threads") else 0)
+
+
+def test_a_step_that_waits_for_its_busy_helper_thread_is_spinning_not_deadlocked() -> None:
+    """Lockstep counts the process's CPU for the step on the main thread: a step asleep in a join while
+    its helper thread computes for it is busy. Judged by the main thread alone it was a 'deadlock at
+    0% of a CPU' (a C-space convolution with workers=-1 restarted six times in one loaded run)."""
+    policy = FailurePolicy(hang_after_s=0.06)
+    rt, _ = make_runtime({"helper_spin_at": 0.3}, policy)
+    _HELPERS_STOP.clear()
+    try:
+        run(rt, 0.6)
+    finally:
+        _HELPERS_STOP.set()  # the interrupted step's helper would spin on, taking the GIL from others
+    ev = rt.events[0]
+    assert (ev.module, ev.cause) == ("a", "hang"), ev.detail
+    assert "spinning" in ev.detail
 
 
 class _LateWorker:
