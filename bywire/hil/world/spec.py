@@ -229,7 +229,7 @@ def _driver(r: Reader) -> DriverSpec:
             )
             b.finish()
         kw["replay"] = r.boolean("replay", False)
-        if not (kw["speed_profile"] or kw["sinusoid"] or kw["replay"]):
+        if not (kw["speed_profile"] or kw.get("sinusoid") or kw["replay"]):
             raise r.error("speed_profile", "a scripted driver needs speed_profile, sinusoid or replay")
     else:
         kw["v_set_mps"] = r.number("v_set_mps", default=100.0 * KMH, lo=0.0, hi=70.0)
