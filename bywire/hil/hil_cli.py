@@ -71,6 +71,15 @@ def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -
         help="urban scenarios: the host perceives the traffic from the simulator's object list (perfect) "
         "or from the simulated Velodyne (lidar); default: the scenario's `perception:`",
     )
+    if scenario_required:
+        p.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="FIELD=VALUE",
+            help="set a field of the scenario first, VALUE in YAML (vehicle.v0_mps=25, "
+            "'faults[0].at_s=3.5'); repeatable: a campaign's run alone",
+        )
     p.add_argument("--quiet", action="store_true", help="no progress line (drawn only on a terminal)")
 
 
@@ -161,10 +170,16 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
     from bywire.hil.run import run_scenario
     from bywire.hil.run_progress import RunProgress, wants_progress
     from bywire.hil.scenario import load_scenario
+    from bywire.hil.scenario_overrides import parse_assignment
     from bywire.process_util import signals_interrupt
 
     mode = args.mode or default_mode
-    scenario = load_scenario(scenario_name)  # a bad name or file stops here, before any process starts
+    overrides = dict(parse_assignment(a) for a in getattr(args, "set", []))
+    if overrides and mode != "sil":
+        # the HIL processes each read the scenario's file, which knows nothing of --set
+        raise ValueError("--set: SIL only (--mode sil); for HIL, write the fields into a scenario file")
+    # a bad name, file or field stops here, before any process starts
+    scenario = load_scenario(scenario_name, overrides)
     json_to_stdout = args.json == STDOUT
     out: TextIO = sys.stderr if json_to_stdout else sys.stdout
     display = None
@@ -178,7 +193,7 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
             _stdout_to_stderr() if json_to_stdout else contextlib.nullcontext(),
         ):
             result = run_scenario(
-                scenario_name,
+                scenario if overrides else scenario_name,
                 mode=mode,
                 json_path=None if json_to_stdout else args.json,
                 report_dir=args.report,

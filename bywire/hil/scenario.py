@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -189,7 +190,8 @@ def _parse_fault(item: Any, source: str, path: str) -> FaultEvent:
     )
 
 
-def _parse_check(item: Any, source: str, path: str) -> Check:
+def parse_check(item: Any, source: str, path: str) -> Check:
+    """One check (`{name, metric, max|min|equals|includes, hil}`), `path` naming it in errors."""
     r = _Reader(item, source, path)
     metric = r.string("metric")
     ops = [op for op in CHECK_OPS if r.has(op)]
@@ -306,7 +308,7 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     raw_checks = r.raw("checks", []) or []
     if not isinstance(raw_checks, list):
         raise ScenarioError(source, "checks", "expected a list of checks")
-    checks = tuple(_parse_check(item, source, f"checks[{i}]") for i, item in enumerate(raw_checks))
+    checks = tuple(parse_check(item, source, f"checks[{i}]") for i, item in enumerate(raw_checks))
     fault_ref = r.opt_number("fault_ref_s", lo=0.0)
     hold_until = r.opt_number("hold_until_s", lo=0.0)
     extra = r.raw("extra", {}) or {}
@@ -460,19 +462,29 @@ def resolve_scenario_path(name_or_file: str) -> Path:
     return known[name_or_file]
 
 
-def load_scenario(name_or_file: str) -> Scenario:
-    """Load a shipped scenario by bare name, or any scenario file by path."""
+def load_scenario(name_or_file: str, overrides: Mapping[str, Any] | None = None) -> Scenario:
+    """Load a shipped scenario by bare name, or any scenario file by path; `overrides` sets fields of
+    it first (`{"vehicle.v0_mps": 25.0}`, `hil.scenario_overrides`)."""
     path = resolve_scenario_path(name_or_file)
     text = path.read_text(encoding="utf-8")
     try:
         data = tomllib.loads(text) if path.suffix == ".toml" else yaml.safe_load(text)
     except (yaml.YAMLError, tomllib.TOMLDecodeError) as exc:
         raise ScenarioError(str(path), "", f"not valid {path.suffix[1:].upper()}: {exc}") from exc
+    if overrides:
+        from bywire.hil.scenario_overrides import OverrideError, apply_overrides
+
+        try:
+            data = apply_overrides(data, overrides)
+        except OverrideError as exc:
+            raise ScenarioError(str(path), "", str(exc)) from None
     try:
         return parse_scenario(data, str(path))
     except SchemaError as exc:
         if exc.source != str(path) or path.suffix == ".toml":  # tomllib keeps no positions
             raise
+        if overrides and any(exc.path == k or exc.path.startswith((f"{k}.", f"{k}[")) for k in overrides):
+            raise ScenarioError(exc.source, exc.path, f"{exc.message} (as set)") from None
         raise exc.at_line(yaml_line(text, exc.path)) from None
 
 
@@ -487,6 +499,7 @@ __all__ = [
     "ScenarioError",
     "builtin_scenarios",
     "load_scenario",
+    "parse_check",
     "parse_scenario",
     "ramp_value",
     "step_value",
