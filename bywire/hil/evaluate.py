@@ -99,6 +99,9 @@ def fault_metrics(plant: dict[str, np.ndarray], scenario: Scenario) -> dict[str,
     if metrics["state_at_fault"] in STOP_STATE_NAMES:
         i_detect = None
     metrics["fault_detect_ms"] = None if i_detect is None else round(float(t[i_detect] - t_ref) * 1000.0, 1)
+    # what a stopping-distance bound starts from (hil.campaign.stop_bound): the speed and the stop
+    metrics["speed_at_fault_mps"] = None if i_ref is None else round(float(plant["speed_mps"][i_ref]), 3)
+    metrics["stop_state"] = None if i_detect is None else EcuState(int(state[i_detect])).name
     i_brake = _first_index(after & (plant["brake_actual_bar"] > BRAKE_ONSET_BAR))
     metrics["brake_onset_ms"] = None if i_brake is None else round(float(t[i_brake] - t_ref) * 1000.0, 1)
     i_stop = _first_index(after & (np.abs(plant["speed_mps"]) < STANDSTILL_MPS))

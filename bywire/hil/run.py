@@ -23,11 +23,14 @@ def run_scenario(
     progress: Callable[[float], None] | None = None,
     leader_profile: Path | None = None,
     perception: str | None = None,
+    inspect: Callable[[Scenario, Any, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Run one scenario (a shipped name, a file or a loaded `Scenario`) and return the result
     document (also written to `json_path` / `report_dir`).
     `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle;
-    `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's)."""
+    `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's);
+    `inspect(scenario, result, document)`: sees the run's traces before they go, and may add to the
+    document (a campaign's digest of the trajectory)."""
     scenario = name_or_file if isinstance(name_or_file, Scenario) else load_scenario(name_or_file)
     if perception is not None:
         from bywire.hil.scenario import with_perception
@@ -83,6 +86,8 @@ def run_scenario(
             "mode": mode,
             **{k: v for k, v in document.items() if k != "scenario"},
         }
+        if inspect is not None:
+            inspect(scenario, result, document)
         if report_dir is not None:
             plot_run(report_dir / f"{scenario.name}.png", scenario, result.plant, result.host, document)
             if scenario.world is not None and result.traffic is not None:
