@@ -76,6 +76,22 @@ COMMANDS: tuple[Command, ...] = (
     Command("hil demo", "the three-process HIL demo with its report", "bywire.hil.hil_cli", "demo"),
     Command("hil list", "list the shipped scenarios", "bywire.hil.hil_cli", "list"),
     Command("hil plant", "(internal) the plant process of a HIL run", "bywire.hil.plant_main"),
+    Command(
+        "campaign", "many SIL runs over parameter grids, on this machine or a Ray cluster", metavar="COMMAND"
+    ),
+    Command(
+        "campaign run",
+        "run a campaign (a shipped one or a file): one Parquet row per run, resumable",
+        "bywire.hil.campaign.campaign_cli",
+        "run",
+    ),
+    Command(
+        "campaign report",
+        "a campaign's pass rates, worst runs with their commands, and plots",
+        "bywire.hil.campaign.campaign_cli",
+        "report",
+    ),
+    Command("campaign list", "list the shipped campaigns", "bywire.hil.campaign.campaign_cli", "list"),
     Command("bench", "benchmarks"),
     Command("bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "benchmarks.ecu"),
     Command(

@@ -1,0 +1,166 @@
+"""`bywire campaign run|report|list`: many SIL runs of the shipped scenarios over grids and draws of
+their parameters, on this machine's cores or a Ray cluster, and what they add up to (docs/campaigns.md).
+
+Exit status (README "Exit status"): `run` 0 when every run passed, 1 when one failed or raised, 2 for a
+bad campaign file, folder or address, 128 + N when stopped by signal N (what finished is kept: resume
+with `--resume DIR`); `report` 0 when every run passed, 1 otherwise, 2 for a folder that holds no
+campaign.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def _complete_campaign(prefix: str, **kwargs: Any) -> list[str]:
+    from argcomplete.completers import FilesCompleter
+
+    from bywire.hil.campaign.spec import builtin_campaigns
+
+    names = [n for n in builtin_campaigns() if n.startswith(prefix)]
+    return names + list(FilesCompleter(("yaml", "yml"))(prefix, **kwargs))
+
+
+def add_run_arguments(p: argparse.ArgumentParser) -> None:
+    spec = p.add_argument(
+        "spec", help="a shipped campaign's name (see `bywire campaign list`) or a campaign file"
+    )
+    spec.completer = _complete_campaign  # type: ignore[attr-defined]
+    p.add_argument("--out", type=Path, help="a new or empty folder for the campaign's results")
+    p.add_argument(
+        "--resume",
+        type=Path,
+        metavar="DIR",
+        help="continue the campaign in DIR (started with the same file): runs not finished there, none twice",
+    )
+    p.add_argument(
+        "--address",
+        help="run on Ray instead of this machine's process pool: ray://HOST:PORT (Ray Client), auto (the "
+        "cluster this machine is in), local (a Ray instance started for the campaign); needs bywire[cluster]",
+    )
+    p.add_argument("--workers", type=int, help="runs at a time (default: every core of the pool or cluster)")
+    p.add_argument("--quiet", action="store_true", help="no progress line (drawn only on a terminal)")
+
+
+def main_run(args: argparse.Namespace) -> int:
+    from bywire.hil.campaign import runner
+    from bywire.hil.campaign.report import summarise, write_report
+    from bywire.hil.campaign.spec import load_campaign
+    from bywire.hil.run_progress import wants_progress
+    from bywire.process_util import signals_interrupt
+
+    if args.out is None and args.resume is None:
+        raise ValueError("campaign run: give --out DIR (a new campaign) or --resume DIR (a stopped one)")
+    if args.out is not None and args.resume is not None and args.out.resolve() != args.resume.resolve():
+        raise ValueError(f"campaign run: --out {args.out} and --resume {args.resume} name two folders")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"campaign run: --workers {args.workers}: expected 1 or more")
+    folder: Path = args.resume or args.out
+    campaign, runs, text = load_campaign(args.spec)
+    todo = runner.prepare(folder, campaign, runs, text, resume=args.resume is not None)
+    print(
+        f"campaign {campaign.name}: {len(runs)} runs, {len(runs) - len(todo)} done before, "
+        f"{len(todo)} to run on {args.address or 'this machine'} -> {folder}",
+        file=sys.stderr,
+    )
+    display = None
+    if not args.quiet and wants_progress(sys.stderr):
+        from bywire.hil.campaign.progress import CampaignProgress
+
+        display = CampaignProgress(campaign.name, len(runs), len(runs) - len(todo), sys.stderr)
+    try:
+        with (
+            signals_interrupt(signal.SIGINT, signal.SIGTERM),
+            display if display is not None else contextlib.nullcontext(),
+        ):
+            outcome = runner.execute(folder, todo, len(runs), args.address, args.workers, on_record=display)
+    except KeyboardInterrupt as exc:
+        signum = int(getattr(exc, "signum", signal.SIGINT))
+        from bywire.hil.campaign import store
+
+        done = len(store.done_ids(folder))
+        print(
+            f"campaign {campaign.name}: INTERRUPTED by {signal.Signals(signum).name}: {done} of {len(runs)} "
+            f"runs done and kept; continue with: bywire campaign run {args.spec} --resume {folder}",
+            file=sys.stderr,
+        )
+        return 128 + signum
+    summary = summarise(folder)
+    write_report(folder, summary)
+    _print_summary(summary, sys.stdout)
+    print(
+        f"campaign {campaign.name}: {outcome.ran} run now, {outcome.skipped} before; results in "
+        f"{folder / 'results.parquet'}, report in {folder / 'report'}",
+        file=sys.stderr,
+    )
+    return 0 if summary["failed"] == 0 else 1
+
+
+def add_report_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", type=Path, help="a campaign's folder (its results.parquet)")
+    p.add_argument(
+        "--json",
+        type=Path,
+        help="write the summary as JSON to this file (`-`: to stdout, and nothing else there)",
+    )
+    p.add_argument("--worst", type=int, default=10, help="how many of the worst runs to list (default 10)")
+
+
+def main_report(args: argparse.Namespace) -> int:
+    import json
+
+    from bywire.hil.campaign.report import summarise, write_report
+
+    summary = summarise(args.dir, worst=args.worst)
+    write_report(args.dir, summary)
+    to_stdout = args.json is not None and str(args.json) == "-"
+    if args.json is not None:
+        text = json.dumps(summary, indent=2, default=str) + "\n"
+        if to_stdout:
+            sys.stdout.write(text)
+        else:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(text, encoding="utf-8")
+    _print_summary(summary, sys.stderr if to_stdout else sys.stdout)
+    return 0 if summary["failed"] == 0 else 1
+
+
+def main_list(args: argparse.Namespace) -> int:
+    import yaml
+
+    from bywire.hil.campaign.spec import builtin_campaigns
+
+    for name, path in builtin_campaigns().items():
+        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        first = str(data.get("description", "")).strip().splitlines()
+        print(f"{name:12s} {first[0] if first else ''}")
+    return 0
+
+
+def _print_summary(summary: dict[str, Any], out: Any) -> None:
+    print(
+        f"{summary['campaign']}: {summary['runs']} runs, {summary['passed']} passed, "
+        f"{summary['failed']} failed ({summary['errors']} raised)",
+        file=out,
+    )
+    for name, s in summary["by_scenario"].items():
+        print(
+            f"  {name:28s} {s['passed']:5d}/{s['runs']:<5d} pass ({100.0 * s['pass_rate']:.1f} %)", file=out
+        )
+    for inv in summary["invariants"]:
+        mark = "HOLDS" if inv["holds"] else f"BROKEN in {len(inv['differing'])} runs"
+        print(f"  invariant {inv['sweep']}.{inv['metric']}: {mark}", file=out)
+    if summary["worst"]:
+        print("worst runs (rerun one alone with its command):", file=out)
+    for w in summary["worst"]:
+        what = w["failed_checks"] or w.get("error") or f"closest: {w['closest_check']} ({w['margin']:+.3g})"
+        print(f"  #{w['index']} {w['sweep']} {w['verdict'].upper()}: {what}", file=out)
+        print(f"    {w['command']}", file=out)
+
+
+__all__ = ["add_report_arguments", "add_run_arguments", "main_list", "main_report", "main_run"]
