@@ -1,434 +1,125 @@
-"""Follow controller of seed 003 (Team AnnieWAY, GCDC 2011), section V-C, eqs. (1)-(3), as a QP.
+"""The follow QP of seed 003 section V-C (eq. 3) solved each control cycle: `FollowQP`.
 
-Variables: the host's planned positions ``z = (x^1 .. x^{m-1})`` on the grid ``t_j = j*dt``,
-``m = horizon_s/dt + 1`` samples, everything relative to the host at ``t_0`` (``x^0 = 0`` is pinned).
-The leader trajectory comes from the vehicle manager's prediction (`LeaderPrediction`; the paper
-assumes constant acceleration except where velocity limits bind: `LeaderPrediction.constant_accel`).
+`follow_problem` holds the problem (and re-exported here, the names its callers import), its
+condensed form onto the accelerations is `follow_condensed`, the reference `follow_oracle`.
 
-Cost (eq. 3, each term times ``dt`` so that it approximates the integral of eq. 2 and the weights mean
-the same at every ``dt``)::
+Solver: DAQP (Arnström, Bemporad, Axehill, "A dual active-set solver for embedded quadratic
+programming using recursive LDL' updates", IEEE TAC 67(8), 2022; MIT), a dual active-set method like
+the paper's Goldfarb-Idnani (quadprog is GPL). One DAQP workspace per `FollowQP`: the Hessian is
+factorised once per `FollowParams`, each cycle updates only ``f`` and the bounds, and the solve starts
+from the previous cycle's working set (the constraints that were active a cycle ago, at the same grid
+indices: at the host's 50 ms cycle on the 0.2 s grid a constraint moves by a quarter of a step). An
+active-set method ends on the exact solution of its working set, so the command is exact to rounding
+(no interior-point tolerance amplified by ``2 / dt^2``). `bywire bench platoon` measures it against
+Clarabel, OSQP, PIQP and ProxSuite on the same matrices, and against the position form's Clarabel
+path that came before (README, "Platoon").
 
-    J = dt * [ sum_{j=1}^{m-2} w_dist (Delta d^j)^2 + w_vel (v_lead^j - v^j)^2
-             + sum_{j=0}^{m-2} w_acc (a^j - a_ref^j)^2 ],     Delta d^j = x_lead^j - r - t_h * v^j - x^j
-
-(a_ref = 0 in the paper; ``accel_ref="leader"`` penalises the difference to the leader's predicted
-acceleration instead, see below.)
-
-with central differences ``v^j = (x^{j+1} - x^{j-1}) / (2 dt)`` and
-``a^j = (x^{j+1} - 2 x^j + x^{j-1}) / dt^2``.
-
-Linear inequalities (the paper's conditions 2 and 3): ``a_min <= a^j <= a_max`` for j = 0..m-2 and
-``v_min <= (x^{j+1} - x^j) / dt <= v_max`` for j = 0..m-2; optionally (deviation, see below)
-``x^j <= x_lead^j - min_gap``.
-
-Fixes of the garbled PDF extraction (derived, not guessed from the layout):
-
-- Safety distance (condition 1 and the Delta d of eq. 3): the extraction reads ``x_0 < x_1 r + t_h v_1``
-  and ``Delta d = x_lead - r + t_h v_lead - x_0``. The gap ``x_lead - x_0`` must *exceed* ``r + t_h v``,
-  so the condition is ``x_0 < x_1 - r - t_h v_1`` and ``Delta d = x_lead - r - t_h v_lead - x_0``. With
-  the extracted ``+ t_h v`` the desired gap would shrink with speed.
-- Finite differences: the extraction labels the first difference ``Delta_c^2`` and the second one
-  ``Delta_c`` and then uses ``u_j = Delta_c^2 x^j`` (a velocity) as the acceleration and
-  ``Delta v_j = v_lead - Delta_c x^j`` (an acceleration) as the velocity error. The two labels are
-  swapped; here velocity = central first difference, acceleration = central second difference.
-- The paper reads the command as ``a = Delta_c^2 x^1``, i.e. the second difference at j = 1, which is
-  what one gets if both ``x^0`` and ``x^1 = x^0 + v_0 dt`` are pinned by the state. That pins the
-  first step at zero acceleration (a one-step delay). Deviation: we pin only ``x^0`` and impose the
-  current speed through the central difference at j = 0 with a ghost point
-  ``x^{-1} = x^1 - 2 dt v_0``. Then ``a^0 = 2 (x^1 - v_0 dt) / dt^2`` is exact for constant
-  acceleration over the first step and is the command (``accel_cmd_mps2``); ``a^1`` (the paper's
-  reading) is reported as ``accel_next_mps2``. Because the command is free, ``a^0`` enters the
-  acceleration penalty (the paper's sum starts at j = 1).
-
-Further deviations:
-
-- Velocity limits on the forward (mid-step) differences, not the central ones: the central ``v^j``
-  only sees ``(a^{j-1} + a^j) / 2``-type sums, so with central limits a host above ``v_max`` could
-  plan ``a^0 > 0, a^1 << 0`` (odd/even decoupling) and command an acceleration while over the limit.
-  The forward difference at j = 0 is ``v_0 + a^0 dt / 2``, which pins the sign of the command. The
-  cost keeps the paper's central differences.
-
-- Headway on the host's speed (``headway_ref="host"``, default): ``Delta d`` uses the host's planned
-  speed ``v^j`` (still linear in z, so still a QP). The paper's eq. 3 multiplies t_h by the leader's
-  speed (``headway_ref="leader"`` keeps that): then a braking leader first moves the desired position
-  *ahead* (its velocity is ``v_lead - t_h a_lead``, e.g. 27 m/s for a leader at 20 m/s braking at
-  6 m/s^2 with the V-D headway 2 t_h), and the host's first command came out slightly positive in
-  that case. Both agree in steady state (``v = v_lead``); the host form is the usual constant time gap.
-  The headway is therefore in P: one `FollowQP` per headway (the strategy keeps one per vehicle).
-
-- Acceleration penalty relative to the leader (``accel_ref="leader"``, off by default): the paper's
-  ``w_acc a^2`` pulls every planned acceleration toward zero, so the plan passes on only part of a
-  leader's predicted acceleration and the follower acts like a constant-time-gap PD on the gap error,
-  which at h = 0.6 s amplifies low-frequency disturbances (host/modules/control/platoon.py). ``w_acc (a -
-  a_lead)^2`` keeps the smoothing but around the leader's predicted profile (the cooperative
-  feed-forward of CACC, inside the QP, with the prediction's own limits). Still a QP: only q changes.
-- Velocity limits are relaxed to what the acceleration limits can reach from the current speed
-  (mid-step speed ``<= max(v_max, v_0 + a_min (t_j + dt/2))``, symmetric below), so a measured speed
-  slightly outside ``[v_min, v_max]`` (noise, a downhill) does not make the QP infeasible. Forward
-  differences are exact sums of the step accelerations, so braking at a_min and then landing on the
-  limit in one step is always a feasible profile.
-- An optional hard no-collision bound ``x^j <= x_lead^j - min_gap_m`` (j = 1..m-1). The paper keeps
-  the safety distance only through the cost. With it, a leader braking harder than our limits allow
-  makes the QP infeasible: the controller then commands ``a_min`` and sets ``feasible = False``;
-  it never raises in the loop (solver errors and non-finite inputs are treated the same way).
-- Solver: the paper uses Goldfarb-Idnani's active set method (as in quadprog, GPL: not used here).
-  The fast path `FollowQP` calls Clarabel's direct sparse interface (Apache-2.0), builds ``P`` and
-  ``A`` once and only updates ``q`` and ``b`` per call; `follow_oracle` is the same problem written
-  independently in cvxpy (solved by Clarabel), the test oracle. cvxpy is imported only when the
-  oracle runs: it takes a second to import, and a host that drives needs only Clarabel (it is in the
-  `test` and `bench` extras, not the runtime dependencies).
+A warm start that fails (cycling, the iteration limit) is retried once from the empty working set;
+infeasibility is DAQP's certificate (the dual is unbounded), the same from any start.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
 
-import clarabel
+import daqp
 import numpy as np
-import numpy.typing as npt
-import scipy.sparse as sp
 
-from bywire.host.limits import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+from .follow_condensed import CondensedFollow
+from .follow_problem import (
+    KMH_TO_MPS,
+    AccelRef,
+    FloatArray,
+    FollowParams,
+    FollowResult,
+    HeadwayRef,
+    LeaderPrediction,
+    braking_result,
+    check_shapes,
+)
 
-if TYPE_CHECKING:
-    import cvxpy as cp
+# DAQP's exit flags (daqp include/constants.h).
+EXIT_OPTIMAL = 1
+EXIT_INFEASIBLE = -1
+_EXIT_NAMES = {
+    1: "optimal",
+    2: "soft optimal",
+    -1: "infeasible",
+    -2: "cycling",
+    -3: "unbounded",
+    -4: "iteration limit",
+}
 
-FloatArray = npt.NDArray[np.float64]
-HeadwayRef = Literal["host", "leader"]
-AccelRef = Literal["zero", "leader"]
-
-KMH_TO_MPS = 1.0 / 3.6
-
-
-@dataclass(frozen=True)
-class FollowParams:
-    """Parameters of one follow QP; defaults are the GCDC 2011 rules (seed 003 V-A)."""
-
-    headway_s: float = 0.6
-    # Paper V-A: "0.6 s and 20 m" (headway and reserve required during the competition).
-    reserve_m: float = 20.0
-    horizon_s: float = 10.0
-    dt_s: float = 0.2
-    w_dist: float = 1.0
-    w_vel: float = 1.0
-    # w_acc = 4 gives, for the unconstrained infinite-horizon analogue (LQR on the double integrator),
-    # gap/speed gains of 0.5 1/s^2 and 1.1 1/s: damping ~0.8, no overshoot worth mentioning.
-    w_acc: float = 4.0
-    accel_min_mps2: float = ACCEL_MIN_MPS2  # host.limits
-    accel_max_mps2: float = ACCEL_MAX_MPS2
-    speed_min_mps: float = 0.0
-    speed_max_mps: float = 100.0 * KMH_TO_MPS
-    # Hard no-collision bound to the predicted leader; None: the cost alone keeps the distance (paper).
-    min_gap_m: float | None = 2.0
-    # Whose speed the headway multiplies: "host" (default, deviation) or "leader" (the paper's eq. 3).
-    headway_ref: HeadwayRef = "host"
-    # What the acceleration penalty measures from: "zero" (the paper's eq. 3: w_acc a^2) or "leader"
-    # (deviation: w_acc (a - a_lead)^2, a_lead from the leader's predicted speeds).
-    accel_ref: AccelRef = "zero"
-
-    def __post_init__(self) -> None:
-        if self.headway_ref not in ("host", "leader"):
-            raise ValueError(f"headway_ref must be 'host' or 'leader', got {self.headway_ref!r}")
-        if self.accel_ref not in ("zero", "leader"):
-            raise ValueError(f"accel_ref must be 'zero' or 'leader', got {self.accel_ref!r}")
-
-    @property
-    def n_samples(self) -> int:
-        """m: samples on the grid including t_0."""
-        return round(self.horizon_s / self.dt_s) + 1
-
-    def time_grid_s(self) -> FloatArray:
-        return np.arange(self.n_samples, dtype=np.float64) * self.dt_s
-
-
-@dataclass(frozen=True)
-class LeaderPrediction:
-    """A leader's predicted positions/speeds on the horizon grid t_j = j*dt, j = 0..m-1.
-
-    Positions are relative to the host's position at t_0 (host at 0, leader ahead > 0).
-    """
-
-    positions_m: FloatArray
-    speeds_mps: FloatArray
-
-    @staticmethod
-    def constant_accel(
-        gap_m: float,
-        speed_mps: float,
-        accel_mps2: float,
-        params: FollowParams,
-    ) -> LeaderPrediction:
-        """The paper's prediction: constant acceleration until a velocity limit, then constant speed."""
-        t = params.time_grid_s()
-        v0 = min(max(speed_mps, params.speed_min_mps), params.speed_max_mps)
-        if accel_mps2 > 0.0:
-            t_sat = (params.speed_max_mps - v0) / accel_mps2
-        elif accel_mps2 < 0.0:
-            t_sat = (params.speed_min_mps - v0) / accel_mps2
-        else:
-            t_sat = math.inf
-        t_eff = np.minimum(t, t_sat)
-        v_end = v0 + accel_mps2 * t_eff
-        pos = gap_m + v0 * t_eff + 0.5 * accel_mps2 * t_eff**2 + v_end * (t - t_eff)
-        return LeaderPrediction(positions_m=pos, speeds_mps=v_end)
-
-
-@dataclass(frozen=True)
-class FollowResult:
-    accel_cmd_mps2: float
-    """a^0: the command for the coming step."""
-    accel_next_mps2: float
-    """a^1 (the paper's a = Delta^2 x^1)."""
-    positions_m: FloatArray
-    """x^0 .. x^{m-1}, relative to the host at t_0."""
-    feasible: bool
-    status: str = ""
-    iterations: int = 0
-
-
-def _braking_result(params: FollowParams, speed_mps: float, status: str) -> FollowResult:
-    """Most braking command (a_min until standstill): the answer when the QP has none."""
-    t = params.time_grid_s()
-    v0 = max(speed_mps, 0.0) if math.isfinite(speed_mps) else 0.0
-    a = params.accel_min_mps2
-    t_eff = np.minimum(t, v0 / -a) if a < 0 else t
-    pos = v0 * t_eff + 0.5 * a * t_eff**2
-    return FollowResult(
-        accel_cmd_mps2=a,
-        accel_next_mps2=a,
-        positions_m=pos,
-        feasible=False,
-        status=status,
-    )
-
-
-def _speed_envelope(params: FollowParams, speed_mps: float) -> tuple[FloatArray, FloatArray]:
-    """Bounds of the mid-step speeds, j = 0..m-2: the limits relaxed to what a_min/a_max reach."""
-    t = params.time_grid_s()[:-1] + 0.5 * params.dt_s
-    v_up = np.maximum(params.speed_max_mps, speed_mps + params.accel_min_mps2 * t)
-    v_lo = np.minimum(params.speed_min_mps, speed_mps + params.accel_max_mps2 * t)
-    return v_up, v_lo
-
-
-def _targets(params: FollowParams, leader: LeaderPrediction) -> tuple[FloatArray, FloatArray]:
-    """The constant part of x^j (+ t_h v^j for "host") in the corrected Delta d of eq. 3, and v_lead^j.
-
-    j = 1..m-2. "leader": g^j = x_lead^j - r - t_h v_lead^j; "host": g^j = x_lead^j - r (the t_h v^j term
-    is in the matrix).
-    """
-    xl = leader.positions_m[1:-1]
-    vl = leader.speeds_mps[1:-1]
-    if params.headway_ref == "leader":
-        return xl - params.reserve_m - params.headway_s * vl, vl
-    return xl - params.reserve_m, vl
-
-
-def _accel_targets(params: FollowParams, leader: LeaderPrediction) -> FloatArray:
-    """The acceleration a^j (j = 0..m-2) is penalised against: zero, or the leader's predicted
-    acceleration (central differences of its predicted speeds, one-sided at j = 0)."""
-    m = params.n_samples
-    if params.accel_ref == "zero":
-        return np.zeros(m - 1)
-    v = leader.speeds_mps
-    a = np.empty(m - 1)
-    a[0] = (v[1] - v[0]) / params.dt_s
-    a[1:] = (v[2:] - v[:-2]) / (2.0 * params.dt_s)
-    return a
-
-
-def _check_shapes(params: FollowParams, leader: LeaderPrediction) -> None:
-    m = params.n_samples
-    if leader.positions_m.shape != (m,) or leader.speeds_mps.shape != (m,):
-        raise ValueError(f"leader prediction must have {m} samples (horizon/dt + 1)")
+# A working set never needs more than one change per constraint; a cold solve of the hardest braking
+# case takes ~120 iterations at dt 0.1 s (bench).
+ITER_LIMIT = 2000
 
 
 class FollowQP:
-    """Fast path: P and A built once per FollowParams, q and b updated per call, Clarabel direct."""
+    """Fast path: DAQP on the condensed problem, its workspace and working set kept between calls."""
 
     def __init__(self, params: FollowParams) -> None:
         self.params = params
-        m = params.n_samples
-        if m < 4:
-            raise ValueError("horizon must span at least 3 steps")
-        n = m - 1
-        dt = params.dt_s
-        # Extended positions (x^{-1}, x^0, .., x^{m-1}) = E z + e_v0 * v_0.
-        rows = np.concatenate(([0], np.arange(2, m + 1)))
-        cols = np.concatenate(([0], np.arange(n)))
-        ext = sp.csr_matrix((np.ones(n + 1), (rows, cols)), shape=(m + 1, n))
-        ext_v0 = np.zeros(m + 1)
-        ext_v0[0] = -2.0 * dt
-        # Central first difference, j = 1..m-2: (x^{j+1} - x^{j-1}) / (2 dt).
-        d1 = sp.diags([-1.0, 1.0], [1, 3], shape=(m - 2, m + 1)) / (2.0 * dt)
-        # Central second difference, j = 0..m-2.
-        d2 = sp.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(m - 1, m + 1)) / dt**2
-        sel = sp.eye(m - 2, m + 1, k=2)  # x^j, j = 1..m-2
-        fwd_d = sp.diags([-1.0, 1.0], [1, 2], shape=(m - 1, m + 1)) / dt  # (x^{j+1} - x^j)/dt, j = 0..m-2
-        fwd = (fwd_d @ ext).tocsc()
-        vel = (d1 @ ext).tocsc()
-        acc = (d2 @ ext).tocsc()
-        self._acc_v0 = d2 @ ext_v0  # only a^0 depends on v_0
-        pos_sel = (sel @ ext).tocsc()
-        # Cost: dt * || M z + c ||^2 with M = [sqrt(w_d) S; sqrt(w_a) D2; sqrt(w_v) D1].
-        sd, sa, sv = math.sqrt(params.w_dist), math.sqrt(params.w_acc), math.sqrt(params.w_vel)
-        dist = pos_sel + params.headway_s * vel if params.headway_ref == "host" else pos_sel
-        big_m = sp.vstack([sd * dist, sa * acc, sv * vel]).tocsc()
-        self._sd, self._sa, self._sv = sd, sa, sv
-        p_full = (2.0 * dt) * (big_m.T @ big_m)
-        self._p = sp.triu(p_full, format="csc")
-        self._q_map = ((2.0 * dt) * big_m.T).tocsr()
-        # Constraints A z + s = b, s >= 0.
-        blocks = [acc, -acc, fwd, -fwd]
-        if params.min_gap_m is not None:
-            blocks.append(sp.eye(n, format="csc"))  # x^j, j = 1..m-1
-        self._a = sp.vstack(blocks).tocsc()
-        self._n = n
-        self._m = m
-        self._settings = clarabel.DefaultSettings()
-        self._settings.verbose = False
-        # Data updates (q, b only) are allowed only without presolve/chordal decomposition.
-        self._settings.presolve_enable = False
-        self._settings.chordal_decomposition_enable = False
-        # Measured (bench): equilibration doubles the iteration count on this problem (the rows of P and A
-        # span ~1/dt^4), and iterative refinement costs ~2x per iteration for no accuracy the tests can
-        # see; both off: ~0.3 ms instead of ~1.6 ms per solve at dt 0.2 s.
-        self._settings.equilibrate_enable = False
-        self._settings.iterative_refinement_enable = False
-        self._settings.max_threads = 1
-        # The command is 2 x^1 / dt^2: position error is amplified 50x (dt 0.2 s) to 200x (dt 0.1 s). At the
-        # default 1e-8 the command differed from the oracle's by up to 9e-3 m/s^2; at 1e-10 by ~2e-5,
-        # for about one more iteration.
-        self._settings.tol_gap_abs = 1e-10
-        self._settings.tol_gap_rel = 1e-10
-        self._settings.tol_feas = 1e-10
-        self._settings.tol_ktratio = 1e-8
-        self._solver: clarabel.DefaultSolver | None = None
+        self.problem = CondensedFollow(params)
+        self._model: daqp.Model | None = None
+        self.warm_start = True
+        """False: every solve from the empty working set (the benchmark's cold rows)."""
 
-    def _vectors(self, speed_mps: float, leader: LeaderPrediction) -> tuple[FloatArray, FloatArray]:
-        p = self.params
-        g, vl = _targets(p, leader)
-        a_ref = _accel_targets(p, leader)
-        c = np.concatenate((-self._sd * g, self._sa * (self._acc_v0 * speed_mps - a_ref), -self._sv * vl))
-        q = self._q_map @ c
-        a_v0 = self._acc_v0 * speed_mps
-        v_up, v_lo = _speed_envelope(p, speed_mps)
-        parts = [p.accel_max_mps2 - a_v0, a_v0 - p.accel_min_mps2, v_up, -v_lo]
-        if p.min_gap_m is not None:
-            parts.append(leader.positions_m[1:] - p.min_gap_m)
-        return np.asarray(q, dtype=np.float64), np.concatenate(parts)
+    def _cold_sense(self) -> FloatArray:
+        return np.zeros(self.problem.n_constraints, dtype=np.int32)
+
+    def _solve_data(self, upper: FloatArray, lower: FloatArray, f: FloatArray) -> tuple[FloatArray, int, int]:
+        """(a, exit flag, iterations); a cold retry where a warm start failed for a reason of its own."""
+        model = self._model
+        if model is None:
+            model = daqp.Model()
+            pr = self.problem
+            flag, _ = model.setup(pr.hessian, f, pr.rows, upper, lower, self._cold_sense())
+            if flag < 0:
+                raise RuntimeError(f"DAQP setup failed ({flag})")
+            model.settings = {"iter_limit": ITER_LIMIT}
+            self._model = model
+            warm = False
+        else:
+            warm = self.warm_start
+            model.update(f=f, bupper=upper, blower=lower, sense=None if warm else self._cold_sense())
+        x, _, flag, info = model.solve()
+        iterations = int(info["iterations"])
+        if warm and flag not in (EXIT_OPTIMAL, EXIT_INFEASIBLE):
+            model.update(sense=self._cold_sense())
+            x, _, flag, info = model.solve()
+            iterations += int(info["iterations"])
+        return np.asarray(x, dtype=np.float64), int(flag), iterations
 
     def solve(self, speed_mps: float, leader: LeaderPrediction) -> FollowResult:
         """One follow solution for the host at ``speed_mps`` behind ``leader``; never raises on data."""
         p = self.params
-        _check_shapes(p, leader)
+        check_shapes(p, leader)
         try:
-            q, b = self._vectors(speed_mps, leader)
-            if not (math.isfinite(speed_mps) and np.all(np.isfinite(q)) and np.all(np.isfinite(b))):
-                return _braking_result(p, speed_mps, "non-finite input")
-            if self._solver is None:
-                cones = [clarabel.NonnegativeConeT(self._a.shape[0])]
-                self._solver = clarabel.DefaultSolver(self._p, q, self._a, b, cones, self._settings)
-            else:
-                self._solver.update(q=q, b=b)
-            sol = self._solver.solve()
-        except Exception as exc:  # the loop never raises: brake and report
-            self._solver = None
-            return _braking_result(p, speed_mps, f"error: {exc}")
-        status = str(sol.status)
-        if not status.endswith(("Solved", "AlmostSolved")) or status.endswith("Unsolved"):
-            return _braking_result(p, speed_mps, status)
-        z = np.asarray(sol.x, dtype=np.float64)
-        return _result_from_positions(p, speed_mps, z, status, int(sol.iterations))
+            d = self.problem.data(speed_mps, leader)
+            # One sum per vector: a NaN or an inf anywhere makes it non-finite (the finite bounds are
+            # at most 1e30, their sums far from overflowing).
+            if not math.isfinite(speed_mps + float(d.f.sum()) + float(d.lower.sum()) + float(d.upper.sum())):
+                return braking_result(p, speed_mps, "non-finite input")
+            accels, flag, iterations = self._solve_data(d.upper, d.lower, d.f)
+        except Exception as exc:  # the loop never raises: brake and report, start afresh next time
+            self._model = None
+            return braking_result(p, speed_mps, f"error: {exc}")
+        status = _EXIT_NAMES.get(flag, f"exit {flag}")
+        if flag != EXIT_OPTIMAL:
+            # An infeasible problem leaves a working set that means nothing for the next one.
+            if self._model is not None:
+                self._model.update(sense=self._cold_sense())
+            return braking_result(p, speed_mps, status)
+        return self.problem.result(speed_mps, accels, status, iterations)
 
 
-def _result_from_positions(
-    p: FollowParams, speed_mps: float, z: FloatArray, status: str, iterations: int
-) -> FollowResult:
-    dt = p.dt_s
-    x = np.concatenate(([0.0], z))
-    a0 = 2.0 * (x[1] - speed_mps * dt) / dt**2
-    a1 = (x[2] - 2.0 * x[1] + x[0]) / dt**2
-    return FollowResult(
-        accel_cmd_mps2=float(a0),
-        accel_next_mps2=float(a1),
-        positions_m=x,
-        feasible=True,
-        status=status,
-        iterations=iterations,
-    )
-
-
-@dataclass
-class _OracleProblem:
-    problem: cp.Problem
-    z: cp.Variable
-    v0: cp.Parameter
-    goal: cp.Parameter
-    vlead: cp.Parameter
-    aref: cp.Parameter
-    v_up: cp.Parameter
-    v_lo: cp.Parameter
-    x_cap: cp.Parameter | None
-
-
-@functools.lru_cache(maxsize=64)
-def _oracle_problem(p: FollowParams) -> _OracleProblem:
-    """Eq. (3) written directly in cvxpy (independent of FollowQP's matrices), parameterised (DPP)."""
-    import cvxpy as cp
-    m = p.n_samples
-    dt = p.dt_s
-    z = cp.Variable(m - 1)
-    v0 = cp.Parameter()
-    goal = cp.Parameter(m - 2)
-    vlead = cp.Parameter(m - 2)
-    aref = cp.Parameter(m - 1)
-    v_up = cp.Parameter(m - 1)
-    v_lo = cp.Parameter(m - 1)
-    ghost = cp.reshape(z[0] - 2.0 * dt * v0, (1,), order="C")
-    ext = cp.hstack([ghost, np.zeros(1), z])  # ext[j + 1] = x^j
-    vel = (ext[3 : m + 1] - ext[1 : m - 1]) / (2.0 * dt)  # j = 1..m-2
-    acc = (ext[2 : m + 1] - 2.0 * ext[1:m] + ext[0 : m - 1]) / dt**2  # j = 0..m-2
-    pos = ext[2:m]  # j = 1..m-2
-    fwd = (ext[2 : m + 1] - ext[1:m]) / dt  # j = 0..m-2
-    dist = pos + p.headway_s * vel if p.headway_ref == "host" else pos
-    cost = dt * (
-        p.w_dist * cp.sum_squares(goal - dist)
-        + p.w_vel * cp.sum_squares(vlead - vel)
-        + p.w_acc * cp.sum_squares(acc - aref)
-    )
-    cons = [acc >= p.accel_min_mps2, acc <= p.accel_max_mps2, fwd <= v_up, fwd >= v_lo]
-    x_cap = None
-    if p.min_gap_m is not None:
-        x_cap = cp.Parameter(m - 1)
-        cons.append(z <= x_cap)
-    prob = cp.Problem(cp.Minimize(cost), cons)
-    return _OracleProblem(prob, z, v0, goal, vlead, aref, v_up, v_lo, x_cap)
-
-
-def follow_oracle(params: FollowParams, speed_mps: float, leader: LeaderPrediction) -> FollowResult:
-    """Reference solution (cvxpy + Clarabel) of the same QP as `FollowQP.solve`; needs the `test` or
-    `bench` extra (cvxpy)."""
-    import cvxpy as cp
-    _check_shapes(params, leader)
-    op = _oracle_problem(params)
-    g, vl = _targets(params, leader)
-    v_up, v_lo = _speed_envelope(params, speed_mps)
-    op.v0.value = speed_mps
-    op.goal.value = g
-    op.vlead.value = vl
-    op.aref.value = _accel_targets(params, leader)
-    op.v_up.value = v_up
-    op.v_lo.value = v_lo
-    if op.x_cap is not None and params.min_gap_m is not None:
-        op.x_cap.value = leader.positions_m[1:] - params.min_gap_m
-    try:
-        op.problem.solve(solver=cp.CLARABEL)
-    except cp.error.SolverError as exc:
-        return _braking_result(params, speed_mps, f"error: {exc}")
-    status = str(op.problem.status)
-    if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or op.z.value is None:
-        return _braking_result(params, speed_mps, status)
-    return _result_from_positions(params, speed_mps, np.asarray(op.z.value, dtype=np.float64), status, 0)
+__all__ = [
+    "KMH_TO_MPS",
+    "AccelRef",
+    "FollowParams",
+    "FollowQP",
+    "FollowResult",
+    "HeadwayRef",
+    "LeaderPrediction",
+]
