@@ -208,9 +208,10 @@ def test_bench_main_writes_contract_json(tmp_path: Path) -> None:
     assert doc["solver_baseline"] in doc["solvers"] and doc["solver_runtime"] in doc["solvers"]
     for row in doc["solvers"].values():
         assert row["p50"] > 0.0 and row["p99"] >= row["p50"]
-        assert row["feasibility_disagreements"] == 0
         assert row["max_abs_diff_vs_oracle"] <= 1e-2  # a candidate fed the wrong data is off by metres/s^2
-    assert doc["solvers"][doc["solver_runtime"]]["max_abs_diff_vs_oracle"] <= ACCEL_TOL_MPS2
+    runtime = doc["solvers"][doc["solver_runtime"]]
+    assert runtime["max_abs_diff_vs_oracle"] <= ACCEL_TOL_MPS2
+    assert runtime["feasibility_disagreements"] == 0
 
 
 def test_bench_platoon_runs_as_a_user_runs_it(tmp_path: Path) -> None:
