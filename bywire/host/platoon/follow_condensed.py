@@ -96,7 +96,7 @@ class CondensedFollow:
         self.rows = np.ascontiguousarray(np.vstack(rows))
         self.n_constraints = n + self.rows.shape[0]
         # The speed envelope of `follow_problem.speed_envelope` relative to v_0: what a_min / a_max
-        # change the speed by at each mid-step time (the oracle, which calls it, holds the two equal).
+        # change the speed by at each mid-step time (the tests hold the two equal through the oracle).
         t_mid = params.time_grid_s()[:-1] + 0.5 * dt
         self._dv_at_min = params.accel_min_mps2 * t_mid
         self._dv_at_max = params.accel_max_mps2 * t_mid

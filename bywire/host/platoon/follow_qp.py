@@ -27,6 +27,7 @@ import math
 
 import daqp
 import numpy as np
+import numpy.typing as npt
 
 from .follow_condensed import CondensedFollow
 from .follow_problem import (
@@ -53,8 +54,8 @@ _EXIT_NAMES = {
     -4: "iteration limit",
 }
 
-# A working set never needs more than one change per constraint; a cold solve of the hardest braking
-# case takes ~120 iterations at dt 0.1 s (bench).
+# Only a cycling solver meets it: measured on random problems, at most ~230 iterations at dt 0.1 s
+# (300 constraints) and ~110 at 0.2 s; one iteration costs 2-10 us.
 ITER_LIMIT = 2000
 
 
@@ -68,10 +69,11 @@ class FollowQP:
         self.warm_start = True
         """False: every solve from the empty working set (the benchmark's cold rows)."""
 
-    def _cold_sense(self) -> FloatArray:
+    def _cold_sense(self) -> npt.NDArray[np.int32]:
+        """DAQP's constraint flags with none active: the empty working set."""
         return np.zeros(self.problem.n_constraints, dtype=np.int32)
 
-    def _solve_data(self, upper: FloatArray, lower: FloatArray, f: FloatArray) -> tuple[FloatArray, int, int]:
+    def _solve_data(self, f: FloatArray, lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, int, int]:
         """(a, exit flag, iterations); a cold retry where a warm start failed for a reason of its own."""
         model = self._model
         if model is None:
@@ -104,7 +106,7 @@ class FollowQP:
             # at most 1e30, their sums far from overflowing).
             if not math.isfinite(speed_mps + float(d.f.sum()) + float(d.lower.sum()) + float(d.upper.sum())):
                 return braking_result(p, speed_mps, "non-finite input")
-            accels, flag, iterations = self._solve_data(d.upper, d.lower, d.f)
+            accels, flag, iterations = self._solve_data(d.f, d.lower, d.upper)
         except Exception as exc:  # the loop never raises: brake and report, start afresh next time
             self._model = None
             return braking_result(p, speed_mps, f"error: {exc}")
