@@ -541,7 +541,7 @@ def build_isolated(kind: str, params: dict[str, Any]) -> Module:
     return KINDS[kind].build(params, None)
 
 
-# Where each kind is implemented, with what it imports (scipy, clarabel, pyproj, asn1tools ...): a
+# Where each kind is implemented, with what it imports (scipy, daqp, pyproj, asn1tools ...): a
 # builder imports it on first use, which on wall time is the module's start, inside the first cycles
 # of the run. Seen in HIL: the platoon controller's start held the host's scheduler for 72 ms and its
 # ECU link for 36 ms while scipy built docstrings at import. `import_implementations` before the run.
