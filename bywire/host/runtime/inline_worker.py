@@ -30,6 +30,14 @@ loaded machine was a "deadlock at 0% of a CPU", interrupted and restarted six ti
 CPU-bound step that is really too slow still misses on its own CPU time. One limit: a voluntary
 switch is a voluntary switch, and the GIL handed to the watchdog thread (it wakes every `POLL_S`)
 during a long step is one, so such a step is charged its wall time as before.
+
+Work a step does for a part of the system that on wall time runs beside it is marked
+`background()`: the zone planner, which in HIL is a worker process of its own and in lockstep runs a
+step of its search inside the behaviour's step, so that its reply comes after the same number of
+cycles on every machine. A background section is not charged to the step (its wall time, CPU and
+voluntary switches are taken out of the step's account) and the watchdog does not judge it before
+`BACKGROUND_BOUND_S`; without it, a loaded machine made the behaviour "slow" (degraded) or "hung"
+(restarted) in SIL by the planner's cost, and a run's outcome depended on the machine.
 """
 
 from __future__ import annotations
@@ -39,7 +47,8 @@ import resource
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
@@ -55,12 +64,61 @@ from bywire.host.runtime.worker import (
 from bywire.process_util import runnable_tasks
 
 POLL_S = 0.05
+BACKGROUND_BOUND_S = 30.0  # a background section still running after this is judged like the step
 SHARE_SAMPLE_S = 0.005
 INTERRUPT_SIGNAL = signal.SIGUSR2
 
 
 class StepInterrupted(BaseException):
     """Raised in a step the watchdog gave up on (a BaseException: `except Exception` cannot keep it)."""
+
+
+@dataclass
+class _Background:
+    """The main thread's `background()` sections: whether one is open, since when, and their totals."""
+
+    depth: int = 0
+    since_wall_s: float = 0.0
+    wall_s: float = 0.0
+    thread_cpu_s: float = 0.0
+    process_cpu_s: float = 0.0
+    switches: int = 0
+
+
+_BACKGROUND = _Background()
+
+
+@contextlib.contextmanager
+def background() -> Iterator[None]:
+    """Mark work of the step in progress as background (see the module docstring). Nested sections
+    count once; off the main thread (thread and process workers, wall time) it changes nothing."""
+    b = _BACKGROUND
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    if b.depth:
+        b.depth += 1
+        try:
+            yield
+        finally:
+            b.depth -= 1
+        return
+    wall0, thread0 = time.perf_counter(), time.thread_time()
+    proc0, sw0 = time.process_time(), _voluntary_switches()
+    b.depth, b.since_wall_s = 1, wall0
+    try:
+        yield
+    finally:
+        b.depth = 0
+        d_wall, d_proc = time.perf_counter() - wall0, time.process_time() - proc0
+        b.wall_s += d_wall
+        b.thread_cpu_s += time.thread_time() - thread0
+        b.process_cpu_s += d_proc
+        b.switches += _voluntary_switches() - sw0
+        wd = _Watchdog._instance
+        armed = None if wd is None else wd.armed
+        if wd is not None and armed is not None:  # the step's clocks stop while it works in the background
+            wd.armed = (armed[0] + d_wall, armed[1], armed[2], armed[3] + d_proc)
 
 
 def inline_possible() -> bool:
@@ -103,14 +161,17 @@ class _Watchdog:
             armed = self.armed
             if armed is None or time.perf_counter() - armed[0] < armed[1]:
                 continue
+            bg = _BACKGROUND
+            if bg.depth and time.perf_counter() - bg.since_wall_s < BACKGROUND_BOUND_S:
+                continue  # not the step's own work (see `background`)
             worker = armed[2]
             if self._starved(armed[3], armed[1]):
                 continue
             wall0, cpu0 = time.perf_counter(), time.process_time()
             time.sleep(SHARE_SAMPLE_S)  # may take longer: a spinning step holds the GIL
             wall1, cpu1 = time.perf_counter(), time.process_time()
-            if self.armed is not armed:
-                continue  # it finished after all
+            if self.armed is not armed or _BACKGROUND.depth:
+                continue  # it finished after all, or went on in the background
             if wall1 > wall0:
                 worker.hang_cpu_share = min(1.0, (cpu1 - cpu0) / (wall1 - wall0))
             self.firing = True
@@ -176,6 +237,8 @@ class InlineWorker(WorkerState):
         self.stats.releases += 1
         self.stats.last_release_s = now_s
         published_before = self.ctx.published
+        bg = _BACKGROUND
+        bg0 = (bg.wall_s, bg.thread_cpu_s, bg.switches)
         switches0 = _voluntary_switches()
         cpu0 = time.thread_time()
         wall0 = time.perf_counter()
@@ -199,7 +262,12 @@ class InlineWorker(WorkerState):
             self.stats,
             self.busy_since_s,
             self._clock.now(),
-            charged_time_s(time.perf_counter() - wall0, cpu0, switches0, self.spec.deadline_s),
+            charged_time_s(
+                time.perf_counter() - wall0 - (bg.wall_s - bg0[0]),  # background work is not the step's
+                cpu0 + (bg.thread_cpu_s - bg0[1]),
+                switches0 + (bg.switches - bg0[2]),
+                self.spec.deadline_s,
+            ),
             self.ctx.published != published_before,
         )
         self.busy_since_s = None

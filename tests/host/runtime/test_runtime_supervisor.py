@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import pytest
 
 from bywire.clock import SimClock
+from bywire.host.runtime.inline_worker import background
 from bywire.host.runtime.module import (
     FailurePolicy,
     Module,
@@ -65,6 +66,13 @@ class Counter(Module):
             helper = threading.Thread(target=_spin_until, args=(end,), name="step-helper", daemon=True)
             helper.start()
             helper.join()
+        if "background_spin_at" in self.fail and t >= self.fail["background_spin_at"]:
+            self.fail.pop("background_spin_at")
+            with background():  # work that on wall time runs beside the step (the zone planner)
+                _spin_for(0.15)
+        if "spin_for" in self.fail and t >= self.fail["spin_for"]:
+            self.fail.pop("spin_for")
+            _spin_for(0.15)
         if "slow_from" in self.fail and t >= self.fail["slow_from"]:
             time.sleep(self.fail["slow_s"])
         if "mute_from" in self.fail and t >= self.fail["mute_from"]:
@@ -76,6 +84,12 @@ class Counter(Module):
 
 
 _HELPERS_STOP = threading.Event()
+
+
+def _spin_for(seconds: float) -> None:
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
 
 
 def _spin_until(end_s: float) -> None:
@@ -181,6 +195,22 @@ def test_a_step_that_waits_for_its_busy_helper_thread_is_spinning_not_deadlocked
     ev = rt.events[0]
     assert (ev.module, ev.cause) == ("a", "hang"), ev.detail
     assert "spinning" in ev.detail
+
+
+@pytest.mark.parametrize("marked", [True, False])
+def test_background_work_of_a_lockstep_step_is_neither_charged_nor_judged(marked: bool) -> None:
+    """150 ms of CPU in a step with a 10 ms deadline and a 50 ms lockstep wait: marked background (the
+    zone planner's step in SIL, a worker process on wall time), the step is on time and nothing is
+    detected; the same work unmarked is a hang."""
+    fault = "background_spin_at" if marked else "spin_for"
+    rt, _ = make_runtime({fault: 0.3}, FailurePolicy(hang_after_s=0.06))
+    run(rt, 0.6)
+    if marked:
+        assert rt.events == []
+        health = rt.summary(0.6)["modules"]["a"]
+        assert health["misses"] == 0 and health["completed"] == 31
+    else:
+        assert causes(rt)[0] == ("a", "hang", "restart")
 
 
 class _LateWorker:

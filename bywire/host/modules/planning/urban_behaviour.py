@@ -7,7 +7,10 @@ reports it: ENGAGED is RUN, DISABLED is DISABLE, anything else PAUSE (before the
 it stops for a fault, the behaviour's clock stands still: nothing times out). Its planner is built from
 the mission's RNDF/MDF once per host (`HostResources.urban_network`, ~1.5 s on the DARPA sample network;
 before the runtime starts). A replan takes ~30 ms: the module's deadline (45 ms of its 50 ms period)
-tolerates it, and "slow" needs 8 misses in 10 releases. Pure: it replays exactly.
+tolerates it, and "slow" needs 8 misses in 10 releases. The path planner (zones, K-turns, exit turns)
+is a worker process on wall time; in lockstep it steps inline, one step of its search per poll, marked
+`background()`: on wall time it would run beside the behaviour, so its cost is not the behaviour's
+(see `runtime.inline_worker`). Pure: it replays exactly.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from bywire.host.behaviour.behaviour import Behaviour
+from bywire.host.behaviour.path_planning import InlinePathPlanner, PlanReply, PlanRequest
 from bywire.host.behaviour.situation import EgoState, EStop, Situation, TrackedObject, match_objects
 from bywire.host.modules.messages import (
     ECU_STATUS,
@@ -40,6 +44,7 @@ from bywire.host.modules.urban_messages import (
     UrbanPlan,
     UrbanPose,
 )
+from bywire.host.runtime.inline_worker import background
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.protocol.ecu_types import EcuState
 
@@ -88,6 +93,18 @@ def objects_on_map(objs: UrbanObjects, offset: LaneOffsetEstimate) -> UrbanObjec
     return replace(objs, objects=moved)
 
 
+class BackgroundPathPlanner(InlinePathPlanner):
+    """The lockstep planner: `InlinePathPlanner`, its steps marked as background work of the step."""
+
+    def poll(self, ticket: int) -> PlanReply | None:
+        with background():
+            return super().poll(ticket)
+
+    def submit(self, request: PlanRequest) -> int:
+        with background():
+            return super().submit(request)
+
+
 class UrbanBehaviour(Module):
     """`Behaviour.step` on the store's pose and objects (see the module docstring)."""
 
@@ -126,6 +143,8 @@ class UrbanBehaviour(Module):
 
             self._path_planner = ProcessPathPlanner()
             self.behaviour.ctx.path_planner = self._path_planner
+        elif self.behaviour.ctx.path_planner is None:
+            self.behaviour.ctx.path_planner = BackgroundPathPlanner()
 
     def close(self) -> None:
         if self._path_planner is not None:
