@@ -23,6 +23,7 @@ from bywire.clock import Clock, SimClock
 from bywire.host.config import HostConfig
 from bywire.host.inputs import HostFaultHooks, HostInputs, NoFaults
 from bywire.host.modules import KINDS, HostResources, import_implementations
+from bywire.host.modules.gcdc_messages import V2V_ICLCM_SENT, V2V_SENT
 from bywire.host.modules.messages import RUN_INFO, RunInfo
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.runtime import Runtime
@@ -102,6 +103,13 @@ class HostAgent:
         for m in self.config.modules:
             self.runtime.add_module(m.spec, self._factory(m.kind, m.params), {"kind": m.kind, **m.params})
         self._started = False
+        # our V2V messages sent over every instance of the sender: a restarted one counts from 0
+        self._v2v_sent = {V2V_SENT: 0, V2V_ICLCM_SENT: 0}
+        self.store.add_tap(self._count_v2v_sent)
+
+    def _count_v2v_sent(self, topic: str, obj: Any) -> None:
+        if topic in self._v2v_sent and obj.sent:
+            self._v2v_sent[topic] += 1  # the sender's thread is its topic's only publisher
 
     def _factory(self, kind: str, params: dict[str, Any]) -> Callable[[], Module]:
         build = KINDS[kind].build
@@ -170,8 +178,9 @@ class HostAgent:
 
     def gcdc_summary(self) -> dict[str, Any]:
         """What the cooperative modules counted: V2V received / accepted / rejected by reason,
-        our CAMs and iCLCMs sent, the pose server's dropped sentences and frozen fixes. Empty without them."""
-        from bywire.host.modules.gcdc_messages import POSE, V2V_ICLCM_SENT, V2V_RECEIVED, V2V_SENT
+        our CAMs and iCLCMs sent (over every instance of the sender), the pose server's dropped
+        sentences and frozen fixes. Empty without them."""
+        from bywire.host.modules.gcdc_messages import POSE, V2V_RECEIVED
 
         out: dict[str, Any] = {}
         batch = self.store.latest(V2V_RECEIVED)
@@ -179,12 +188,10 @@ class HostAgent:
             out["v2v_received"] = batch.received
             out["v2v_accepted"] = batch.accepted
             out["v2v_rejected"] = {rc.reason: rc.count for rc in batch.rejected}
-        cam = self.store.latest(V2V_SENT)
-        if cam is not None:
-            out["cam_sent"] = cam.count
-        iclcm = self.store.latest(V2V_ICLCM_SENT)
-        if iclcm is not None:
-            out["iclcm_sent"] = iclcm.count
+        if self.store.latest(V2V_SENT) is not None:
+            out["cam_sent"] = self._v2v_sent[V2V_SENT]
+        if self.store.latest(V2V_ICLCM_SENT) is not None:
+            out["iclcm_sent"] = self._v2v_sent[V2V_ICLCM_SENT]
         pose = self.store.latest(POSE)
         if pose is not None:
             out["nmea_dropped"] = pose.nmea_dropped

@@ -203,3 +203,17 @@ def test_full_platoon_scenarios_with_report(tmp_path: Path, name: str) -> None:
         assert (tmp_path / f"{name}_{suffix}.png").stat().st_size > 10_000
     if name == "gcdc_heat":
         assert m["real_time_factor"] > 1.5  # several times real time on an idle machine; bounded here
+
+
+def test_our_cams_are_counted_over_a_restart_of_the_sender() -> None:
+    """The sender raises at 10 s and the supervisor restarts it: `cam_sent` counts every CAM of the run,
+    not only the new instance's (a restart had hidden 22 s of CAMs in a three-process heat)."""
+    sc = load_scenario(
+        "platoon_braking",
+        {"duration_s": 20.0, "faults": [{"at_s": 10.0, "kind": "module_exception", "module": "v2v_tx"}]},
+    )
+    result = run_sil(sc)
+    sender = result.extra["host_runtime"]["modules"]["v2v_tx"]
+    assert sender["restarts"] == 1 and sender["releases"] == 100  # the new instance: the last 10 s
+    gcdc = result.extra["gcdc"]
+    assert gcdc["cam_sent"] >= 190 and gcdc["iclcm_sent"] == gcdc["cam_sent"], gcdc
