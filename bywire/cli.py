@@ -75,7 +75,7 @@ COMMANDS: tuple[Command, ...] = (
     Command("hil run", "run one scenario and judge it", "bywire.hil.hil_cli", "run"),
     Command("hil demo", "the three-process HIL demo with its report", "bywire.hil.hil_cli", "demo"),
     Command("hil list", "list the shipped scenarios", "bywire.hil.hil_cli", "list"),
-    Command("hil plant", "(internal) the plant process of a HIL run", "bywire.hil.plant_main"),
+    Command("hil plant", "(internal) the plant process of a HIL run", "bywire.cli", "hil_plant"),
     Command(
         "campaign", "many SIL runs over parameter grids, on this machine or a Ray cluster", metavar="COMMAND"
     ),
@@ -370,9 +370,21 @@ def main_completion(args: argparse.Namespace) -> int:
 
 
 def add_host_run_arguments(p: argparse.ArgumentParser) -> None:
-    from bywire.host import main as host_main
+    from bywire.host.main_args import add_arguments
 
-    host_main.add_arguments(p)
+    add_arguments(p)
+
+
+def add_hil_plant_arguments(p: argparse.ArgumentParser) -> None:
+    from bywire.hil.plant_args import add_arguments
+
+    add_arguments(p)
+
+
+def main_hil_plant(args: argparse.Namespace) -> int:
+    from bywire.hil import plant_main
+
+    return plant_main.main(args)
 
 
 def main_host_run(args: argparse.Namespace) -> int:

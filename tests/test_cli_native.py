@@ -74,6 +74,8 @@ def _bywire(*argv: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["rndf", "check", "--help"],
         ["perception", "grid", "--help"],
         ["zone", "plan", "--help"],
+        ["host", "run", "--help"],
+        ["hil", "plant", "--help"],
         ["completion", "bash"],
     ],
 )
