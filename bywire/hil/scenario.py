@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -439,27 +439,43 @@ CONTRACT_SCENARIOS = (
 )
 
 
-def builtin_scenarios() -> dict[str, Path]:
-    """Scenarios shipped in hil/scenarios/, by bare name."""
-    folder = resources.files("bywire.hil") / "scenarios"
+def shipped_files(folder: str, suffixes: Collection[str]) -> dict[str, Path]:
+    """The files of the package folder `hil/<folder>/` with one of `suffixes`, by bare name, sorted."""
     found: dict[str, Path] = {}
-    for entry in folder.iterdir():
+    for entry in (resources.files("bywire.hil") / folder).iterdir():
         path = Path(str(entry))
-        if path.suffix in SCENARIO_SUFFIXES:
+        if path.suffix in suffixes:
             found[path.stem] = path
     return dict(sorted(found.items()))
 
 
-def resolve_scenario_path(name_or_file: str) -> Path:
+def resolve_shipped(
+    name_or_file: str,
+    suffixes: Collection[str],
+    shipped: Callable[[], dict[str, Path]],
+    error: type[SchemaError],
+    what: str,
+) -> Path:
+    """A file by path (its suffix one of `suffixes`) or a shipped one by bare name (`shipped()`, looked
+    at only then); else `error`."""
     path = Path(name_or_file)
-    if path.suffix in SCENARIO_SUFFIXES:
+    if path.suffix in suffixes:
         if not path.is_file():
-            raise ScenarioError(name_or_file, "", "no such scenario file")
+            raise error(name_or_file, "", f"no such {what} file")
         return path
-    known = builtin_scenarios()
+    known = shipped()
     if name_or_file not in known:
-        raise ScenarioError(name_or_file, "", f"unknown scenario; shipped ones: {', '.join(known)}")
+        raise error(name_or_file, "", f"unknown {what}; shipped ones: {', '.join(known)}")
     return known[name_or_file]
+
+
+def builtin_scenarios() -> dict[str, Path]:
+    """Scenarios shipped in hil/scenarios/, by bare name."""
+    return shipped_files("scenarios", SCENARIO_SUFFIXES)
+
+
+def resolve_scenario_path(name_or_file: str) -> Path:
+    return resolve_shipped(name_or_file, SCENARIO_SUFFIXES, builtin_scenarios, ScenarioError, "scenario")
 
 
 def load_scenario(name_or_file: str, overrides: Mapping[str, Any] | None = None) -> Scenario:

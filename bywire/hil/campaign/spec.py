@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from bywire.hil.scenario import ScenarioError, builtin_scenarios, parse_check
+from bywire.hil.scenario import ScenarioError, builtin_scenarios, parse_check, resolve_shipped, shipped_files
 from bywire.hil.scenario_overrides import OverrideError, check_path
 from bywire.hil.world.urban_spec import SHARED_PREFIX, shared_data_root
 from bywire.schema import Reader, SchemaError
@@ -341,25 +341,11 @@ def _params_text(run: Run) -> str:
 
 def builtin_campaigns() -> dict[str, Path]:
     """Campaigns shipped in hil/campaigns/, by bare name."""
-    from importlib import resources
-
-    folder = resources.files("bywire.hil") / "campaigns"
-    found = {
-        Path(str(e)).stem: Path(str(e)) for e in folder.iterdir() if Path(str(e)).suffix in CAMPAIGN_SUFFIXES
-    }
-    return dict(sorted(found.items()))
+    return shipped_files("campaigns", CAMPAIGN_SUFFIXES)
 
 
 def resolve_campaign_path(name_or_file: str) -> Path:
-    path = Path(name_or_file)
-    if path.suffix in CAMPAIGN_SUFFIXES:
-        if not path.is_file():
-            raise CampaignError(name_or_file, "", "no such campaign file")
-        return path
-    known = builtin_campaigns()
-    if name_or_file not in known:
-        raise CampaignError(name_or_file, "", f"unknown campaign; shipped ones: {', '.join(known)}")
-    return known[name_or_file]
+    return resolve_shipped(name_or_file, CAMPAIGN_SUFFIXES, builtin_campaigns, CampaignError, "campaign")
 
 
 def campaign_line(text: str, path: str) -> int | None:
