@@ -9,7 +9,7 @@ wall-clock second (x20 is a SIL run twenty times faster than real time, x1.0 a H
 from __future__ import annotations
 
 from types import TracebackType
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Self, TextIO
 
 if TYPE_CHECKING:
     from rich.progress import Progress, Task, TaskID
@@ -22,7 +22,26 @@ def wants_progress(stream: TextIO) -> bool:
     return bool(isatty and isatty())
 
 
-class RunProgress:
+class TerminalProgress:
+    """A rich progress display used as a context manager: drawn from entry, finished at the exit
+    (also on an interrupt). Subclasses build `_progress` and say what one call advances."""
+
+    _progress: Progress
+
+    def __enter__(self) -> Self:
+        self._progress.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._progress.stop()
+
+
+class RunProgress(TerminalProgress):
     """A progress line for one run; call it with the fraction done (0..1), use it as a context
     manager so that the line is finished (or cleared, on an interrupt) when the run ends."""
 
@@ -56,15 +75,3 @@ class RunProgress:
 
     def __call__(self, fraction: float) -> None:
         self._progress.update(self._task, completed=min(max(fraction, 0.0), 1.0) * self._duration_s)
-
-    def __enter__(self) -> RunProgress:
-        self._progress.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self._progress.stop()

@@ -7,14 +7,15 @@ estimate from the rate of recent runs.
 
 from __future__ import annotations
 
-from types import TracebackType
 from typing import TYPE_CHECKING, Any, TextIO
 
+from bywire.hil.run_progress import TerminalProgress
+
 if TYPE_CHECKING:
-    from rich.progress import Progress, TaskID
+    from rich.progress import TaskID
 
 
-class CampaignProgress:
+class CampaignProgress(TerminalProgress):
     def __init__(self, label: str, total: int, done: int, stream: TextIO) -> None:
         from rich.console import Console
         from rich.progress import (
@@ -26,7 +27,7 @@ class CampaignProgress:
             TimeRemainingColumn,
         )
 
-        self._progress: Progress = Progress(
+        self._progress = Progress(
             TextColumn("{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
@@ -47,15 +48,3 @@ class CampaignProgress:
         else:
             self._failed += 1
         self._progress.update(self._task, advance=1, passed=self._passed, failed=self._failed)
-
-    def __enter__(self) -> CampaignProgress:
-        self._progress.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self._progress.stop()
