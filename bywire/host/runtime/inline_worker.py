@@ -214,6 +214,8 @@ class InlineWorker(WorkerState):
             self._module = self._guarded(lambda: _start(factory, self.ctx))
         except StepInterrupted:
             self.failure = Failure("hang", "start did not return", clock.now())
+        except KeyboardInterrupt:
+            raise  # Ctrl-C or a signal handled like it (process_util): the run's, not the module's
         except BaseException as exc:
             self._fail("exception", exc, "start")
 
@@ -253,6 +255,8 @@ class InlineWorker(WorkerState):
         except StepInterrupted:
             self.ctx.fenced = True
             return True  # busy from now on, like a thread that never came back
+        except KeyboardInterrupt:
+            raise  # Ctrl-C or a signal handled like it lands in whatever step runs: it stops the run
         except BaseException as exc:
             self._fail("exception", exc, "step")
             self.busy_since_s = None

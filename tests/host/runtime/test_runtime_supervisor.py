@@ -70,6 +70,9 @@ class Counter(Module):
             self.fail.pop("background_spin_at")
             with background():  # work that on wall time runs beside the step (the zone planner)
                 _spin_for(0.15)
+        if "interrupt_at" in self.fail and t >= self.fail["interrupt_at"]:
+            self.fail.pop("interrupt_at")
+            raise KeyboardInterrupt  # Ctrl-C (or SIGINT/SIGTERM, process_util) landing in this step
         if "spin_for" in self.fail and t >= self.fail["spin_for"]:
             self.fail.pop("spin_for")
             _spin_for(0.15)
@@ -211,6 +214,17 @@ def test_background_work_of_a_lockstep_step_is_neither_charged_nor_judged(marked
         assert health["misses"] == 0 and health["completed"] == 31
     else:
         assert causes(rt)[0] == ("a", "hang", "restart")
+
+
+def test_ctrl_c_in_a_lockstep_step_stops_the_run_and_is_no_module_fault() -> None:
+    """A signal handled like Ctrl-C lands in whatever step the main thread runs: it ends the run (whose
+    `finally` writes its files, exit 128 + N), rather than restarting that module as if it had raised
+    (then the run went on to its end and exited 0: a flaky CLI test showed it)."""
+    rt, store = make_runtime({"interrupt_at": 0.3})
+    with pytest.raises(KeyboardInterrupt):
+        run(rt, 0.6)
+    assert rt.events == []
+    assert store.latest("/a").t_s == pytest.approx(0.28)
 
 
 class _LateWorker:
