@@ -9,10 +9,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-pytest.importorskip("foxglove", reason="the scene needs the live extra (foxglove-sdk)")
-pytest.importorskip("google.protobuf", reason="the test decodes with protobuf (test extra)")
-
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from bywire.host.modules.perception_messages import (
