@@ -361,9 +361,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
 def _cmd_scene(args: argparse.Namespace) -> int:
     try:
         import foxglove
-        import foxglove.channels
 
         from bywire.host.modules.scene_view import SOURCE_TOPICS, SceneConverter
+        from bywire.host.runtime.live_view import foxglove_channel
     except ImportError as exc:
         print(f"error: log scene needs foxglove-sdk: pip install 'bywire[live]' ({exc})", file=sys.stderr)
         return 2
@@ -382,8 +382,7 @@ def _cmd_scene(args: argparse.Namespace) -> int:
             for topic, msg in converter.convert(entry.topic, entry.obj):
                 channel = channels.get(topic)
                 if channel is None:
-                    typed = getattr(foxglove.channels, type(msg).__name__ + "Channel")
-                    channel = channels[topic] = typed(topic, context=context)
+                    channel = channels[topic] = foxglove_channel(topic, msg, context)
                 channel.log(msg, log_time=entry.log_time_ns)
                 counts[topic] = counts.get(topic, 0) + 1
     if not counts:

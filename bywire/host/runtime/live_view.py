@@ -36,6 +36,15 @@ from bywire.host.runtime.log_schema import (
 )
 
 
+def foxglove_channel(topic: str, msg: Any, context: Context) -> Any:
+    """The SDK's typed channel on `topic` for a message of Foxglove's own schemas (`SceneUpdate` ->
+    `SceneUpdateChannel`), in `context`: the live view's and `bywire log scene`'s."""
+    typed = getattr(foxglove.channels, type(msg).__name__ + "Channel", None)
+    if typed is None:
+        raise LogError(topic, f"topic {topic!r}: {type(msg).__name__} is no Foxglove schema")
+    return typed(topic, context=context)
+
+
 class LiveView:
     """A Foxglove WebSocket server publishing store objects (`publish`, a store tap) and CAN frames."""
 
@@ -72,10 +81,10 @@ class LiveView:
                 return
             known = self._channels.get(topic)
             if known is None:
-                typed = getattr(foxglove.channels, type(msg).__name__ + "Channel", None)
-                if typed is None:
-                    raise LogError(self.url, f"topic {topic!r}: {type(msg).__name__} is no Foxglove schema")
-                known = (typed(topic, context=self._context), type(msg))
+                try:
+                    known = (foxglove_channel(topic, msg, self._context), type(msg))
+                except LogError as exc:
+                    raise LogError(self.url, exc.problem) from None
                 self._channels[topic] = known
             elif known[1] is not type(msg):
                 raise LogError(
