@@ -81,7 +81,6 @@ class _Background:
     since_wall_s: float = 0.0
     wall_s: float = 0.0
     thread_cpu_s: float = 0.0
-    process_cpu_s: float = 0.0
     switches: int = 0
 
 
@@ -113,7 +112,6 @@ def background() -> Iterator[None]:
         d_wall, d_proc = time.perf_counter() - wall0, time.process_time() - proc0
         b.wall_s += d_wall
         b.thread_cpu_s += time.thread_time() - thread0
-        b.process_cpu_s += d_proc
         b.switches += _voluntary_switches() - sw0
         wd = _Watchdog._instance
         armed = None if wd is None else wd.armed
