@@ -19,7 +19,7 @@ from __future__ import annotations
 from .. import rules
 from ..context import BehaviourContext
 from ..hsm import State, Transition
-from ..lanes import adjacent_left_lane
+from ..lanes import AdjacentLane, adjacent_left_lane
 from ..manoeuvre import Leg, kturn_legs
 from ..path_planning import blocked_ahead, legs_of, planner_of
 from .turnaround import turn_request, turn_target
@@ -49,13 +49,22 @@ def _kturn_entry(ctx: BehaviourContext) -> None:
     ctx.manoeuvre_data.pop(_TICKET, None)
     ctx.manoeuvre_data.pop(_BLOCKED_AT, None)
     target = turn_target(ctx)
-    request = None if target is None else turn_request(ctx, target)
+    if _ask_for_the_turn(ctx, target, True, "no lane to plan the turn onto"):
+        ctx.kturn_target = target
+
+
+def _ask_for_the_turn(
+    ctx: BehaviourContext, target: AdjacentLane | None, begin_forward: bool, none: str
+) -> bool:
+    """Ask the planner for the turn onto `target` from where we stand (True); where no request can be
+    made, begin the geometric three-point turn and say why (`none`)."""
+    request = None if target is None else turn_request(ctx, target, begin_forward)
     if request is None:
-        ctx.say("K-turn: no lane to plan the turn onto: the three-point turn")
+        ctx.say(f"K-turn: {none}: the three-point turn")
         ctx.begin_legs(_geometric_legs(ctx))
-        return
-    ctx.kturn_target = target
+        return False
     ctx.manoeuvre_data[_TICKET] = planner_of(ctx).submit(request)
+    return True
 
 
 def _kturn_exit(ctx: BehaviourContext) -> None:
@@ -80,15 +89,9 @@ def _replan_turn(ctx: BehaviourContext) -> None:
     """The rest of the turn planned again from here; the car holds until it comes (DriveKTurnPlanning),
     and turns the geometric way if none does."""
     ctx.manoeuvre_data[_BLOCKED_AT] = ctx.t_s
-    target = ctx.kturn_target
     ctx.legs, ctx.leg_index = (), 0
-    request = None if target is None else turn_request(ctx, target, begin_forward=False)
-    if request is None:
-        ctx.say("K-turn: blocked, and no plan can be asked from here: the three-point turn")
-        ctx.begin_legs(_geometric_legs(ctx))
-        return
-    ctx.manoeuvre_data[_TICKET] = planner_of(ctx).submit(request)
-    ctx.say("K-turn: the turn is blocked ahead by what stands there now: replanning from here")
+    if _ask_for_the_turn(ctx, ctx.kturn_target, False, "blocked, and no plan can be asked from here"):
+        ctx.say("K-turn: the turn is blocked ahead by what stands there now: replanning from here")
 
 
 def _take_plan(ctx: BehaviourContext) -> None:
