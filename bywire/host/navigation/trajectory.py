@@ -61,14 +61,15 @@ def _stretch_profile(length_m: float, v_max: float, lim: SpeedLimits, dt_s: floa
         raise ValueError(
             f"speed_profile: ruckig found no profile for {length_m:.2f} m at {v_max:.2f} m/s ({result})"
         )
-    t = np.append(np.arange(0.0, traj.duration, dt_s), traj.duration)
-    s = np.empty_like(t)
-    v = np.empty_like(t)
-    a = np.empty_like(t)
-    for i, ti in enumerate(t):
-        p, vel, acc = traj.at_time(float(ti))
-        s[i], v[i], a[i] = p[0], vel[0], acc[0]
+    t, s, v, a = _sampled(traj, dt_s)
     return t, np.clip(s, 0.0, length_m), v, a
+
+
+def _sampled(traj: Trajectory, dt_s: float) -> tuple[np.ndarray, ...]:
+    """(t, position, velocity, acceleration) of a one-axis ruckig trajectory every `dt_s` and at its end."""
+    t = np.append(np.arange(0.0, traj.duration, dt_s), traj.duration)
+    out = np.array([np.concatenate(traj.at_time(float(ti))) for ti in t])
+    return t, out[:, 0], out[:, 1], out[:, 2]
 
 
 def speed_profile(
@@ -141,12 +142,7 @@ def _launch(target_mps: float, accel_mps2: float, jerk_mps3: float, dt_s: float)
     result = Ruckig(1).calculate(inp, traj)
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f"launch_profile: ruckig found no drive-off to {target_mps:.2f} m/s ({result})")
-    t = np.append(np.arange(0.0, traj.duration, dt_s), traj.duration)
-    v = np.empty_like(t)
-    a = np.empty_like(t)
-    for i, ti in enumerate(t):
-        _, vel, acc = traj.at_time(float(ti))
-        v[i], a[i] = vel[0], acc[0]
+    t, _, v, a = _sampled(traj, dt_s)
     return LaunchProfile(target_mps, t, np.maximum.accumulate(v), a)
 
 
