@@ -80,3 +80,20 @@ def test_the_load_benchmark_calls_any_safe_stop_spurious_and_merges_rhythms(tmp_
     assert doc["runs"] == 2 and doc["spurious_stops"] == 2 and doc["ecu_faults"] == {"HOST_HEARTBEAT": 2}
     assert doc["heartbeat_gap_max_ms"] == 61.0 and doc["host_gap_ms"]["count"] == 6
     assert {"p99", "p999", "max"} <= set(doc["host_gap_ms"])
+
+
+def test_the_partitioned_load_stays_off_the_ecus_cpu(tmp_path: Path) -> None:
+    """`bench hil --load --partition`: the load's processes may run only on the housekeeping CPUs, and
+    the machine's floor is measured on the ECU's CPU."""
+    import os
+
+    from bywire.cli import import_command_module
+
+    bench = import_command_module("benchmarks.hil_load")
+    part = bench.Partition.of_this_machine()
+    assert part.ecu_cpu not in part.housekeeping and part.ecu_cpu == max(os.sched_getaffinity(0))
+    with bench.background_load(tmp_path, disk=True, cpus=part.housekeeping) as procs:
+        assert len(procs) == 2
+        assert all(os.sched_getaffinity(p.pid) == set(part.housekeeping) for p in procs)
+    floor = bench.bare_loop_lateness_ms(0.2, cpu=part.ecu_cpu)
+    assert {"p50", "p99", "p999", "max"} <= set(floor)

@@ -80,6 +80,13 @@ def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -
             help="set a field of the scenario first, VALUE in YAML (vehicle.v0_mps=25, "
             "'faults[0].at_s=3.5'); repeatable: a campaign's run alone",
         )
+    p.add_argument(
+        "--ecu-cpu",
+        type=int,
+        metavar="N",
+        help="HIL: pin the ECU process to CPU N (keep the machine's other work off it: README "
+        '"When a process falls behind")',
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line (drawn only on a terminal)")
 
 
@@ -203,6 +210,7 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
                 progress=reached,
                 leader_profile=args.leader_profile,
                 perception=args.perception,
+                ecu_cpu=args.ecu_cpu,
             )
     except KeyboardInterrupt as exc:
         signum = int(getattr(exc, "signum", signal.SIGINT))

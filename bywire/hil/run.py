@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -23,14 +24,24 @@ def run_scenario(
     progress: Callable[[float], None] | None = None,
     leader_profile: Path | None = None,
     perception: str | None = None,
+    ecu_cpu: int | None = None,
     inspect: Callable[[Scenario, Any, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Run one scenario (a shipped name, a file or a loaded `Scenario`) and return the result
     document (also written to `json_path` / `report_dir`).
     `leader_profile`: a real leader's speed (OpenACC or CARMA CSV) for the world's `replay` vehicle;
     `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's);
+    `ecu_cpu`: HIL only, the CPU the ECU process is pinned to (a CPU kept free of other work);
     `inspect(scenario, result, document)`: sees the run's traces before they go, and may add to the
     document (a campaign's digest of the trajectory)."""
+    if ecu_cpu is not None and mode != "hil":
+        raise ValueError(
+            f"an ECU CPU ({ecu_cpu}) applies to --mode hil only: in {mode} the ECU is no process"
+        )
+    if ecu_cpu is not None and ecu_cpu not in os.sched_getaffinity(0):
+        raise ValueError(
+            f"ECU CPU {ecu_cpu}: not one of this machine's CPUs {sorted(os.sched_getaffinity(0))}"
+        )
     scenario = name_or_file if isinstance(name_or_file, Scenario) else load_scenario(name_or_file)
     if perception is not None:
         from bywire.hil.scenario import with_perception
@@ -75,6 +86,7 @@ def run_scenario(
                 progress=progress,
                 ecu_store=ecu_store,
                 leader_profile=leader_profile,
+                ecu_cpu=ecu_cpu,
             )
         else:
             raise ValueError(f"mode must be sil or hil, not {mode!r}")

@@ -145,8 +145,12 @@ def run_hil(
     progress: Callable[[float], None] | None = None,
     ecu_store: Path | None = None,
     leader_profile: Path | None = None,
+    ecu_cpu: int | None = None,
 ) -> RunResult:
-    """Run `scenario` as real processes on loopback virtual buses; traces and logs land in `run_dir`."""
+    """Run `scenario` as real processes on loopback virtual buses; traces and logs land in `run_dir`.
+
+    `ecu_cpu` pins the ECU to one CPU (`bywire ecu run --cpu`): with the machine's other work kept off
+    that CPU it is the partition README "When a process falls behind" measures."""
     run_dir.mkdir(parents=True, exist_ok=True)
     children: list[Child] = []
     pty: Any = None
@@ -250,6 +254,8 @@ def run_hil(
             "--vehicle-profile",
             scenario.vehicle_profile,
         ]
+        if ecu_cpu is not None:
+            ecu_argv += ["--cpu", str(ecu_cpu)]
         if ecu_store is not None:
             ecu_argv += ["--store", str(ecu_store)]
         else:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -70,9 +71,12 @@ def _hil_run(
 
 
 def test_accel_steps_in_three_processes(tmp_path: Path) -> None:
+    """Also with the ECU pinned to a CPU of its own (`--ecu-cpu`, the partition of a loaded machine)."""
     record = tmp_path / "frames.log"
-    proc, doc, report = _hil_run(tmp_path, "accel_steps", "--record", str(record))
+    ecu_cpu = max(os.sched_getaffinity(0))
+    proc, doc, report = _hil_run(tmp_path, "accel_steps", "--record", str(record), "--ecu-cpu", str(ecu_cpu))
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert f"CPU affinity {ecu_cpu}: yes" in (report / "ecu.log").read_text()
     assert doc["mode"] == "hil" and doc["verdict"] == "pass"
     assert doc["metrics"]["accel_rms_error_mps2"] <= 0.15
     assert all(code == 0 for code in doc["metrics"]["exit_codes"].values()), doc["metrics"]["exit_codes"]
