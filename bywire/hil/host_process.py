@@ -11,8 +11,7 @@ import logging
 
 from bywire.hil.host_inputs import host_inputs
 from bywire.hil.module_faults import ModuleFaultInjector, check_module_faults
-from bywire.hil.scenario import load_scenario, with_perception
-from bywire.host.config import load_host_config
+from bywire.hil.scenario import load_scenario, scenario_host_config, with_perception
 from bywire.host.main import run_host
 
 
@@ -24,7 +23,7 @@ def main(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.perception is not None:
         scenario = with_perception(scenario, args.perception)
-    config = load_host_config(args.config or scenario.host_config)
+    config = scenario_host_config(scenario, args.config)
     check_module_faults(scenario, config)
     faults = ModuleFaultInjector(scenario, 0.0, in_process=False)
     return run_host(args, config, host_inputs(scenario), faults)

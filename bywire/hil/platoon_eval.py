@@ -67,10 +67,10 @@ def _round(x: float | None, nd: int = 3) -> float | None:
 
 def platoon_params(scenario: Scenario) -> tuple[float, float]:
     """(reserve_m, headway_s) of the host's platoon controller, from its host configuration."""
-    from bywire.host.config import load_host_config
+    from bywire.hil.scenario import scenario_host_config
 
     try:
-        cfg = load_host_config(scenario.host_config)
+        cfg = scenario_host_config(scenario)
     except ValueError:
         return 8.0, 0.6
     for m in cfg.modules:
@@ -264,6 +264,8 @@ def evaluate_platoon(
     m["v2v_rejected"] = dict(gcdc.get("v2v_rejected", {}))
     if "fuzz_sent" in world:
         m["fuzz_sent"] = world["fuzz_sent"]
+    m["v2v_lost"] = int(world.get("v2v_lost", 0))
+    m["headway_s"] = ego_params[1]
     for k in ("v2v_received", "v2v_accepted", "cam_sent", "iclcm_sent", "nmea_dropped", "frozen_fixes"):
         if k in gcdc:
             m[k] = gcdc[k]

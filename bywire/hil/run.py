@@ -10,7 +10,7 @@ from typing import Any
 
 from bywire.hil.evaluate import evaluate
 from bywire.hil.report import plot_run, write_json
-from bywire.hil.scenario import Scenario, load_scenario
+from bywire.hil.scenario import Scenario, load_scenario, scenario_host_config
 
 
 def run_scenario(
@@ -54,9 +54,8 @@ def run_scenario(
         profile = leader_profile_from_csv(scenario, leader_profile)
     from bywire.hil.module_faults import check_module_faults
     from bywire.hil.scenario_vehicle import check_initial_conditions
-    from bywire.host.config import load_host_config
 
-    check_module_faults(scenario, load_host_config(scenario.host_config))  # before any process starts
+    check_module_faults(scenario, scenario_host_config(scenario))  # before any process starts
     check_initial_conditions(scenario)
     if scenario.urban is not None:
         from bywire.hil.scenario import ScenarioError

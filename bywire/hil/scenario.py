@@ -15,7 +15,7 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -25,6 +25,9 @@ from bywire.profiles import ramp_value, step_value
 from bywire.protocol.ecu_types import EcuState, EstopMode
 from bywire.protocol.vehicle_can import VEHICLE_PROFILES
 from bywire.schema import Reader, SchemaError, yaml_line
+
+if TYPE_CHECKING:
+    from bywire.host.config import HostConfig
 
 SCENARIO_SUFFIXES = (".yaml", ".yml", ".toml")
 
@@ -147,6 +150,8 @@ class Scenario:
     # What the vehicle CAN speaks (protocol.vehicle_can.VEHICLE_PROFILES): our gateway's reports, or a
     # VW PQ car's own messages (the plant and the ECU both speak it).
     vehicle_profile: str = "bywire"
+    # host.params: module name -> parameters set over the host configuration's (a campaign's headway)
+    host_params: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def faults_of(self, *kinds: str) -> tuple[FaultEvent, ...]:
         return tuple(f for f in self.faults if f.kind in kinds)
@@ -273,6 +278,9 @@ def parse_scenario(data: Any, source: str) -> Scenario:
     host_config = host.string("config", default="default")
     if Path(host_config).suffix in (".yaml", ".yml", ".toml"):
         host_config = _relative_to(source, host_config)
+    host_params = host.raw("params", {}) or {}
+    if not isinstance(host_params, dict) or not all(isinstance(v, dict) for v in host_params.values()):
+        raise host.error("params", f"expected module name -> mapping of parameters, got {host_params!r}")
     for i, (_, a) in enumerate(accel_profile):
         if not -10.0 <= a <= 10.0:
             raise host.error(f"accel_profile[{i}]", f"acceleration {a} m/s^2 is not physical")
@@ -376,8 +384,19 @@ def parse_scenario(data: Any, source: str) -> Scenario:
         world=world,
         urban=urban,
         vehicle_profile=vehicle_profile,
+        host_params={str(k): dict(v) for k, v in host_params.items()},
     )
     return with_perception(scenario, perception) if urban is not None else scenario
+
+
+def scenario_host_config(scenario: Scenario, name_or_file: str | None = None) -> HostConfig:
+    """The host configuration a run of `scenario` uses (`name_or_file`, default the scenario's), with
+    the scenario's `host.params` set over it: the one place SIL, the HIL host and the evaluation read it."""
+    from bywire.host.config import load_host_config  # the module registry: not for `hil list`
+
+    return load_host_config(
+        name_or_file or scenario.host_config, scenario.host_params, (scenario.source, "host.params")
+    )
 
 
 # What an urban host perceives the other cars by: the world's object list, or the simulated LIDAR.

@@ -35,7 +35,7 @@ from bywire.hil.module_faults import ModuleFaultInjector
 from bywire.hil.plant import Plant, PlantLinks
 from bywire.hil.recording import Recorder
 from bywire.hil.run_calibration import load_run_calibration
-from bywire.hil.scenario import Scenario
+from bywire.hil.scenario import Scenario, scenario_host_config
 from bywire.hil.scenario_vehicle import open_scenario_vehicle
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil_bus import SimVirtualBus
@@ -43,7 +43,6 @@ from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import BytePipe
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
 from bywire.host.agent import HostAgent
-from bywire.host.config import load_host_config
 from bywire.host.trace import HOST_COLUMNS, TraceWriter
 from bywire.protocol.canopen_link.host_master import HostMaster
 from bywire.protocol.vehicle_can import VehicleCodec
@@ -141,7 +140,7 @@ def run_sil(
             host_inputs(scenario),
             link,
             t0_s=0.0,
-            config=load_host_config(scenario.host_config),
+            config=scenario_host_config(scenario),
             faults=ModuleFaultInjector(scenario, 0.0),
             sensor_bus=bus(vehicle_ch, can_filters=_filters(plant.codec, RADAR_MESSAGES)),
             trace=host_trace,

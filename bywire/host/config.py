@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -255,7 +256,26 @@ def parse_host_config(data: Any, source: str) -> HostConfig:
     )
 
 
-def load_host_config(name_or_file: str) -> HostConfig:
-    """A shipped configuration by bare name (`default`), or any configuration file."""
+def load_host_config(
+    name_or_file: str,
+    module_params: Mapping[str, Mapping[str, Any]] | None = None,
+    params_at: tuple[str, str] = ("", "params"),
+) -> HostConfig:
+    """A shipped configuration by bare name (`default`), or any configuration file; `module_params`
+    (module name -> parameters) set some of its modules' parameters over the file's, as an `extends`
+    file would (a scenario's `host.params`: an error names them by `params_at`, (file, field path))."""
     path = _resolve(name_or_file)
-    return parse_host_config(_load_data(path), str(path))
+    data = _load_data(path)
+    if module_params:
+        names = {m.get("name") for m in data.get("modules", []) if isinstance(m, dict)}
+        for name, params in module_params.items():
+            source, field_path = params_at[0] or str(path), f"{params_at[1]}.{name}"
+            if name not in names:
+                known = ", ".join(sorted(str(n) for n in names))
+                message = f"no module {name!r} in {path.name} (its modules: {known})"
+                raise HostConfigError(source, field_path, message)
+            if not isinstance(params, Mapping):
+                raise HostConfigError(source, field_path, f"expected a mapping of parameters, got {params!r}")
+        over = {"modules": [{"name": n, "params": dict(p)} for n, p in module_params.items()]}
+        data = _merge(data, over, params_at[0] or str(path))
+    return parse_host_config(data, str(path))

@@ -127,6 +127,25 @@ def test_module_faults_must_name_a_module_of_the_host(tmp_path: Path) -> None:
         run_scenario(str(bad))
 
 
+def test_a_scenarios_host_params_set_module_parameters_over_the_configuration(tmp_path: Path) -> None:
+    """`host.params` (a campaign's headway): merged over the module's parameters as an `extends` file
+    would; a module the configuration lacks, or parameters that are no mapping, named in the scenario."""
+    from bywire.hil.scenario import ScenarioError, load_scenario, scenario_host_config
+
+    base = load_host_config("gcdc").module("platoon").params
+    cfg = load_host_config("gcdc", {"platoon": {"headway_s": 0.8}})
+    assert cfg.module("platoon").params == {**base, "headway_s": 0.8} and base["headway_s"] == 0.6
+    path = tmp_path / "s.yaml"
+    path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platoon: {headway_s: 0.9}}}\n")
+    assert scenario_host_config(load_scenario(str(path))).module("platoon").params["headway_s"] == 0.9
+    path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platon: {headway_s: 0.9}}}\n")
+    with pytest.raises(HostConfigError, match=r"s.yaml: host.params.platon: no module 'platon' in gcdc.yaml"):
+        scenario_host_config(load_scenario(str(path)))
+    path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platoon: 0.9}}\n")
+    with pytest.raises(ScenarioError, match=r"host.params: expected module name -> mapping"):
+        load_scenario(str(path))
+
+
 def test_a_stop_policy_brings_the_car_to_a_controlled_stop_through_the_ecu(tmp_path: Path) -> None:
     """The host runtime supervisor's third reaction, end to end in SIL: the controller fails, its policy
     says stop, the ECU link sets the STOP flag, and the ECU stops and holds the car."""

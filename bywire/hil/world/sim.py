@@ -139,6 +139,8 @@ class WorldSim:
         }
         if self.broadcaster is not None and self.broadcaster.fuzzer is not None:
             out["fuzz_sent"] = self.broadcaster.fuzz_sent
+        if self.broadcaster is not None and self.broadcaster.lost:
+            out["v2v_lost"] = self.broadcaster.lost
         gaps = [float(v["min_gap_m"]) for v in stats.values() if v["min_gap_m"] is not None]
         out["min_gap_all_m"] = min(gaps) if gaps else None
         ttcs = [float(v["min_ttc_s"]) for v in stats.values() if v["min_ttc_s"] is not None]

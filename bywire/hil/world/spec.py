@@ -148,6 +148,7 @@ class GpsSpec:
 class V2vSpec:
     host_rate_hz: float = 10.0  # our own CAM (seed 003: 10-25 Hz)
     epoch_unix_s: float = 1305374400.0  # SIL's wall time at t = 0: 2011-05-14 12:00 UTC (GCDC final)
+    loss: float = 0.0  # share of the other cars' datagrams lost on the channel, each on its own draw
 
 
 @dataclass(frozen=True)
@@ -394,7 +395,10 @@ def parse_world(
     )
     gr.finish()
     vr = r.sub("v2v")
-    v2v = V2vSpec(host_rate_hz=vr.number("host_rate_hz", default=10.0, lo=10.0, hi=25.0))
+    v2v = V2vSpec(
+        host_rate_hz=vr.number("host_rate_hz", default=10.0, lo=10.0, hi=25.0),
+        loss=vr.number("loss", default=0.0, lo=0.0, hi=0.99),
+    )
     vr.finish()
     raw_vehicles = r.raw("vehicles", []) or []
     if not isinstance(raw_vehicles, list):

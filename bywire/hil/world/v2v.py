@@ -22,6 +22,10 @@ CAM the GCDC 2016 iCLCM (`protocol.v2x.iclcm`), same stamp and latency, from its
 
 No random draw is spent on an iCLCM: the CAMs' noise is the same with or without them.
 
+Channel loss (`world.v2v.loss`, a campaign's axis): each of the other cars' datagrams, CAM and iCLCM
+alike, is lost with that probability on its own draw, from a generator of its own, so that the states
+sent (and their noise) are the same at every loss rate, and a run without loss draws nothing.
+
 The bad data of seed 003 (Sec. IV-B, VI):
 
 - frozen (a GPS outage under a bridge, seed 003 Fig. 6, Sec. VI): the broadcast position stays where it
@@ -89,6 +93,9 @@ class V2vBroadcaster:
         self.spec: WorldSpec = world.spec
         self.unix_time = unix_time
         self.rng = np.random.default_rng(seed + 7919)
+        self._loss = self.spec.v2v.loss
+        self._loss_rng = np.random.default_rng(seed + 104729)
+        self.lost = 0
         self._queue: list[tuple[float, int, bytes]] = []
         self._seq = 0
         self._next: dict[int, float] = {}
@@ -241,8 +248,14 @@ class V2vBroadcaster:
                     lf = self._low_frequency.setdefault(v.index, LowFrequencyClock()).due(
                         state.generation_time_s
                     )
-                    self._push(nxt + latency, encode(state, low_frequency=lf))
-                    self._push(nxt + latency, encode(self._cooperative_state(v, state.generation_time_s)))
+                    for payload in (
+                        encode(state, low_frequency=lf),
+                        encode(self._cooperative_state(v, state.generation_time_s)),
+                    ):
+                        if self._loss and self._loss_rng.random() < self._loss:
+                            self.lost += 1
+                        else:
+                            self._push(nxt + latency, payload)
                 nxt += period
             self._next[v.index] = nxt
         while self.spec.roadside and self._next_map <= t_s:

@@ -317,6 +317,34 @@ def test_frozen_sender_repeats_its_position_exactly_silent_sends_nothing_late_is
     assert min(late) >= 0.43 - 1e-9
 
 
+def test_channel_loss_drops_datagrams_on_their_own_draws_and_changes_nothing_sent() -> None:
+    """`world.v2v.loss`: each datagram lost on its own draw, the states sent (and their noise) the same at
+    every loss rate: what arrives with loss is a subset of what arrives without, in the same order."""
+
+    def received(loss: float) -> tuple[list[bytes], int]:
+        car = VehicleSpec(
+            "v", 0, 200.0, 20.0, DriverSpec(kind="scripted", speed_profile=((0.0, 20.0),)),
+            v2v=V2vSenderSpec(station_id=7, position_noise_m=0.5),
+        )  # fmt: skip
+        spec = dataclasses.replace(world_of(car), v2v=V2vSpec(loss=loss))
+        world = World(spec)
+        bc = V2vBroadcaster(world, lambda t: EPOCH + t, seed=3)
+        out: list[bytes] = []
+        for k in range(1, 2001):
+            world.place_ego(k * 0.01, 0.0, 0.0, 0.0, 0.0, 0.0)
+            world.step(k * 0.01)
+            out += bc.due(k * 0.01)
+        return out, bc.lost
+
+    clean, lost0 = received(0.0)
+    lossy, lost = received(0.3)
+    assert lost0 == 0 and len(clean) == 400  # 20 s of CAM + iCLCM at 10 Hz
+    assert len(lossy) + lost == len(clean) and 0.2 < lost / len(clean) < 0.4
+    it = iter(clean)
+    assert all(any(d == c for c in it) for d in lossy)  # a subsequence: nothing sent differs
+    assert received(0.3) == (lossy, lost)  # deterministic for a seed
+
+
 def test_every_communicating_car_sends_its_iclcm_beside_its_cam() -> None:
     cacc = DriverSpec(kind="cacc", v_set_mps=30.0, headway_s=0.6)
     world = World(
