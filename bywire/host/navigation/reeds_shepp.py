@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import reeds_shepp_kernel as _kernel
+
 __all__ = [
     "RsPath", "Segment", "all_paths", "normalised", "sample", "shortest_length", "shortest_normalised_length",
     "shortest_path", "shortest_paths",
@@ -223,9 +225,10 @@ _U_TWICE = {"tuUv", "tuuv"}
 _Solution = tuple[float, str, str, tuple[float, float, float], float, bool]
 
 
-def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
+def _solutions_reference(x: float, y: float, phi: float) -> list[_Solution]:
     """(length in radii, word, shape, (t, u, v), sign of time, reflected) of every word's solution, in
-    the order of `_WORDS` and `_MIRRORS`; paths are built only for those that are wanted."""
+    the order of `_WORDS` and `_MIRRORS`; paths are built only for those that are wanted. In Python: the
+    reference the compiled words (`reeds_shepp_kernel`, what `_solutions` runs) are held equal to."""
     c, s = math.cos(phi), math.sin(phi)
     xb, yb = x * c + y * s, x * s - y * c
     out: list[_Solution] = []
@@ -239,6 +242,29 @@ def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
                 t, u, v = r
                 length = abs(t) + abs(u) * (2.0 if twice else 1.0) + abs(v) + extra
                 out.append((length, word, shape, r, sx, reflect))
+    return out
+
+
+_SOLVERS = (
+    _lp_sp_lp, _lp_sp_rp, _lp_rm_l, _lp_rup_lum_rm, _lp_rum_lum_rp, _lp_rm_sm_lm, _lp_rm_sm_rm, _lp_rm_slm_rp,
+)  # fmt: skip
+# The word table as the compiled kernel takes it, one entry per word of `_WORDS`
+_K_SOLVER = np.array([_SOLVERS.index(w[0]) for w in _WORDS], dtype=np.int64)
+_K_BACKWARDS = np.array([w[2] for w in _WORDS], dtype=np.bool_)
+_K_TWICE = np.array([w[3] in _U_TWICE for w in _WORDS], dtype=np.bool_)
+_K_EXTRA = np.array([_EXTRA[w[3]] for w in _WORDS], dtype=np.float64)
+_K_MIRRORS = np.array([(sx, sy) for sx, sy, _ in _MIRRORS], dtype=np.float64)
+
+
+def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
+    """`_solutions_reference`'s list, from the compiled words."""
+    rows = np.empty((_kernel.MAX_SOLUTIONS, 6))
+    n = _kernel.solutions(x, y, phi, _K_SOLVER, _K_BACKWARDS, _K_TWICE, _K_EXTRA, _K_MIRRORS, rows)
+    out: list[_Solution] = []
+    for length, w, m, t, u, v in rows[:n].tolist():
+        _, word, _, shape = _WORDS[int(w)]
+        sx, _, reflect = _MIRRORS[int(m)]
+        out.append((length, word, shape, (t, u, v), sx, reflect))
     return out
 
 
@@ -260,7 +286,7 @@ def shortest_paths(x: float, y: float, phi: float, count: int) -> list[RsPath]:
 
 def shortest_normalised_length(x: float, y: float, phi: float) -> float:
     """The shortest path's length in radii, in the normalised frame (what `all_paths` finds, faster)."""
-    return min((sol[0] for sol in _solutions(x, y, phi)), default=math.inf)
+    return float(_kernel.shortest_length(x, y, phi, _K_SOLVER, _K_BACKWARDS, _K_TWICE, _K_EXTRA, _K_MIRRORS))
 
 
 def normalised(
