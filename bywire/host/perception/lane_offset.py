@@ -16,8 +16,10 @@ One measurement (`measure_offset`), on the marker image of `lane_markers.MarkerG
 2. The Radon plane at normals psi + 90 deg +- `max_angle_error_rad` (the lines are "close to parallel"):
    the angle of most high-passed energy, then the peaks of its projection (`radon.lines_at`).
 3. Each observed line's signed lateral distance from the centreline, d = p - n . (F - C) (left > 0,
-   n the left normal, C the image centre), is matched to the nearest expected marking e_j (the lane's
-   boundaries at +-w/2 and, by default, the neighbouring lanes' at +-3w/2); the residual d - e_j is that
+   n the left normal, C the image centre), is matched to the nearest expected marking e_j: where the
+   map puts them (`markings_m`, the urban host's lane_offset module reads them off the road network:
+   midway to a lane beside, that lane's far edge, or the lane's own edge), by default the lane's
+   boundaries at +-w/2 and the neighbouring lanes' at +-3w/2 (abutting lanes); the residual d - e_j is that
    line's vote for the offset. Votes beyond `max_offset_lane_widths` x w are dropped (the paper's "does
    not exceed one lane width": a vote at +-w/2 is ambiguous between two markings).
 4. The offset is the strength-weighted median of the votes, refined to the weighted mean of the votes
@@ -182,8 +184,11 @@ def measure_offset(
     params: OffsetParams = OffsetParams(),
     *,
     spectrum: RadonSpectrum | None = None,
+    markings_m: npt.ArrayLike | None = None,
 ) -> OffsetMeasurement | None:
-    """One frame's offset (see the module docstring); None when no line votes."""
+    """One frame's offset (see the module docstring); None when no line votes. `markings_m`: where the
+    map puts the markings, metres left of the centreline (default `params.markings_lane_widths` x the
+    width: lanes that abut, each as wide as this one)."""
     if not (math.isfinite(lane_width_m) and lane_width_m > 0.0):
         raise ValueError(f"lane_width_m = {lane_width_m}: must be finite and > 0")
     cx, cy = grid.centre_xy_m
@@ -198,7 +203,12 @@ def measure_offset(
     centre_offset = float(n @ np.array([fx - cx, fy - cy]))  # the centreline's p in the Radon plane
     lateral = np.array([ln.offset_m - centre_offset for ln in found.lines])
     strength = np.array([ln.strength for ln in found.lines])
-    expected = np.asarray(params.markings_lane_widths, dtype=np.float64) * lane_width_m
+    if markings_m is None:
+        expected = np.asarray(params.markings_lane_widths, dtype=np.float64) * lane_width_m
+    else:
+        expected = np.asarray(markings_m, dtype=np.float64)
+        if expected.ndim != 1 or expected.size == 0 or not np.all(np.isfinite(expected)):
+            raise ValueError(f"markings_m = {markings_m!r}: expected one or more finite offsets")
     nearest = expected[np.argmin(np.abs(lateral[:, None] - expected[None, :]), axis=1)]
     votes = lateral - nearest
     ok = np.abs(votes) <= params.max_offset_lane_widths * lane_width_m
@@ -301,9 +311,12 @@ class LaneOffsetEstimator:
         centreline_xy_m: npt.ArrayLike,
         lane_width_m: float,
         ground_mask: BoolArray | None = None,
+        markings_m: npt.ArrayLike | None = None,
     ) -> LaneOffset:
         self.markers.update(scan, pose, ground_mask)
-        m = measure_offset(self.markers.grid, centreline_xy_m, lane_width_m, self.params)
+        m = measure_offset(
+            self.markers.grid, centreline_xy_m, lane_width_m, self.params, markings_m=markings_m
+        )
         self.last = self.filter.update(m, scan.stamp_s)
         return self.last
 

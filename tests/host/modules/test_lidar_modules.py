@@ -8,13 +8,14 @@ import math
 import time
 
 import numpy as np
+import pytest
 from module_harness import Harness
 
 from bywire.hil.lidar.urban_scene import UrbanLidar
 from bywire.hil.perception_eval import MATCH_M
 from bywire.hil.scenario import load_scenario
 from bywire.hil.world.urban import UrbanWorld
-from bywire.host.modules.estimation.lane_offset import LaneOffsetModule
+from bywire.host.modules.estimation.lane_offset import LaneOffsetModule, expected_markings
 from bywire.host.modules.estimation.lidar_perception import LidarPerception
 from bywire.host.modules.perception_messages import (
     LANE_OFFSET,
@@ -86,6 +87,30 @@ def test_the_lane_offset_finds_a_map_that_is_off_by_a_translation() -> None:
     assert est.valid
     assert abs(est.north_m - offset_north) < 0.3 and abs(est.east_m) < 1e-6
     assert est.correction() == (est.east_m, est.north_m)
+
+
+def test_the_lane_offset_expects_the_markings_where_the_map_puts_them() -> None:
+    """cross.rndf's lane centres lie 4 m apart for 12 ft lanes: the line between them is 2 m from each
+    centre, not half a width (1.83 m). Expected where the map puts it, a map that is right reads ~0;
+    expected as abutting lanes, it read that 0.17 m as the map's error."""
+    world = UrbanWorld(load_scenario("four_way_stop_0").urban, 1)  # type: ignore[arg-type]
+    world.cars.clear()
+    lidar = UrbanLidar.build(world, seed=5)
+    index = LaneIndex(world.graph)
+    lane = index.match(-120.0, -2.0, 0.0)
+    assert lane is not None
+    assert expected_markings(index, lane.edge, lane.s_m, 3.6576) == pytest.approx((-1.8288, 2.0, 5.8288))
+    module = LaneOffsetModule(index)
+    h_mod = Harness("lane_offset", module)
+    for k in range(25):
+        t = 0.1 * k
+        x = -140.0 + 1.0 * k  # 10 m/s along lane 1.1, on its centre, the map right
+        world.ego = (x, -2.0, 0.0, 10.0, 0.0)
+        h_mod.publish(URBAN_POSE, _pose(t, x, -2.0, 0.0, 10.0))
+        h_mod.publish(PERCEPTION_SCAN, _scan_msg(lidar.revolution(t), t, k))
+        h_mod.step(t)
+    est = h_mod.latest(LANE_OFFSET)
+    assert est.valid and abs(est.estimate_m) < 0.06, est
 
 
 def test_the_sensor_process_casts_what_the_plant_snapshots_and_sends_it_to_the_host() -> None:

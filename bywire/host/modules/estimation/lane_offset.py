@@ -9,6 +9,13 @@ normal where it was measured; none below `MIN_CORRECTION_M`): the behaviour and 
 it from our pose, and the behaviour from the perceived objects' positions (both are measured in the
 position fix's frame), and the whole map then lies where the road is, through intersections as well.
 
+Where the markings are expected is read off the map at the car's foot point, as the paper projects "the
+lane markings specified in the RNDF": on each side of the lane, midway to the centre of a lane beside it
+(parallel or not, its centre half a width to one and a half widths across) and that lane's far edge, or,
+with no lane beside, the lane's own edge. An RNDF's lane centres lie farther apart than its lane width
+in places (the DARPA sample's first segment: up to 4.8 m for 12 ft lanes), and abutting lanes of that
+width put the shared line 0.6 m off where it is: the car drove its first 90 s 0.5 m beside its lane.
+
 Where it measures: on a lane (not an exit or a zone), the car moving (`MIN_SPEED_MPS`) along it
 (`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another. It reads the
 road network from the host's resources: it runs in the host process.
@@ -36,11 +43,13 @@ from bywire.host.perception.lane_offset import LaneOffsetEstimator
 from bywire.host.roadnet.graph import DEFAULT_LANE_WIDTH_M, EdgeKind
 from bywire.host.runtime.module import Module, ModuleContext
 
-# Smaller offsets are the map's drawing, not its error: the shared boundary of two lanes is painted
-# between them, and a network whose lane centres lie farther apart than its lane width (the shipped
-# cross.rndf: 4 m apart, 12 ft wide) puts that paint 0.17 m from where abutting lanes would have it.
-# A survey's error that matters is a metre (seed 000 Sec. 6); the map is trusted within this.
+# Smaller offsets are the map's drawing (its waypoints' kinks, the paint's width), not its error: a
+# survey's error that matters is a metre (seed 000 Sec. 6); the map is trusted within this.
 MIN_CORRECTION_M = 0.3
+# A lane beside ours has its centre this many of our lane widths across (as the simulated road's paint
+# finds its neighbours, hil/lidar/road_marks.py) and runs within this angle of ours, either way.
+BESIDE_LANE_WIDTHS = (0.5, 1.5)
+BESIDE_MAX_ANGLE_RAD = math.radians(30.0)
 MIN_SPEED_MPS = 1.0  # standing, the same markings would be counted again and again
 # The paper's "predicted and estimated lane boundaries are close to parallel": measured only while the car
 # drives along its lane. Across it (a K-turn in a dead end, a turn-around) the markings seen are the
@@ -69,9 +78,10 @@ class LaneOffsetModule(Module):
         self._lane_since = (math.inf, math.inf)
         self._last = LaneOffsetEstimate(0.0, False, math.nan, 0.0, math.inf, False, 0.0, 0.0, 0.0)
 
-    def _map_lane(self, x: float, y: float, h: float) -> tuple[np.ndarray, float] | None:
-        """The centreline (driving order) and width of the map lane the car is on, or None (also while
-        the car has driven less than `SETTLE_M` along it since it came onto it)."""
+    def _map_lane(self, x: float, y: float, h: float) -> tuple[np.ndarray, float, tuple[float, ...]] | None:
+        """The centreline (driving order), width and expected markings (`expected_markings`) of the map
+        lane the car is on, or None (also while the car has driven less than `SETTLE_M` along it since it
+        came onto it)."""
         match = self.lane_index.match(x, y, h, max_heading_error_rad=MAX_HEADING_ERROR_RAD)
         if match is None or match.edge.kind != EdgeKind.LANE:
             return None
@@ -86,8 +96,12 @@ class LaneOffsetModule(Module):
         if len(s) < 2:
             return None
         px, py, _, _ = path.sample(s)
-        width = match.edge.lane_width_m or DEFAULT_LANE_WIDTH_M
-        return np.column_stack((px, py)), float(width)
+        width = float(match.edge.lane_width_m or DEFAULT_LANE_WIDTH_M)
+        return (
+            np.column_stack((px, py)),
+            width,
+            expected_markings(self.lane_index, match.edge, match.s_m, width),
+        )
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
@@ -122,8 +136,8 @@ class LaneOffsetModule(Module):
             self.estimator.markers.update(s, VehiclePose(x, y, h))
             est = self.estimator.filter.update(None, scan.stamp_s)
         else:
-            centreline, width = lane
-            est = self.estimator.update(s, VehiclePose(x, y, h), centreline, width)
+            centreline, width, markings = lane
+            est = self.estimator.update(s, VehiclePose(x, y, h), centreline, width, markings_m=markings)
             d = centreline[-1] - centreline[0]
             norm = float(np.hypot(d[0], d[1]))
             if est.accepted and norm > 0.0:
@@ -134,4 +148,32 @@ class LaneOffsetModule(Module):
                                         applied * nx, applied * ny, est.offset_m)  # fmt: skip
 
 
-__all__ = ["LaneOffsetModule"]
+def expected_markings(lane_index: Any, edge: Any, s_m: float, width_m: float) -> tuple[float, ...]:
+    """Where the map puts the markings at arc length `s_m` of lane `edge`, in metres left of its centre
+    (see the module docstring), sorted."""
+    foot = edge.path.point_at(s_m)
+    nx, ny = -math.sin(foot.heading_rad), math.cos(foot.heading_rad)
+    lo, hi = BESIDE_LANE_WIDTHS[0] * width_m, BESIDE_LANE_WIDTHS[1] * width_m
+    nearest: dict[float, tuple[float, float]] = {}  # side -> (centre across, that lane's width)
+    for cand in lane_index.candidates(foot.x_m, foot.y_m, None, max_distance_m=hi):
+        other = cand.edge
+        if other.kind != EdgeKind.LANE or other.lane == edge.lane:
+            continue
+        p = other.path.point_at(cand.s_m)
+        if abs(math.cos(p.heading_rad - foot.heading_rad)) < math.cos(BESIDE_MAX_ANGLE_RAD):
+            continue
+        across = nx * (p.x_m - foot.x_m) + ny * (p.y_m - foot.y_m)
+        side = math.copysign(1.0, across)
+        if lo <= abs(across) <= hi and (side not in nearest or abs(across) < abs(nearest[side][0])):
+            nearest[side] = (across, float(other.lane_width_m or DEFAULT_LANE_WIDTH_M))
+    out: list[float] = []
+    for side in (1.0, -1.0):
+        if side in nearest:
+            across, other_width = nearest[side]
+            out += [0.5 * across, across + side * 0.5 * other_width]
+        else:
+            out.append(side * 0.5 * width_m)
+    return tuple(sorted(out))
+
+
+__all__ = ["LaneOffsetModule", "expected_markings"]
