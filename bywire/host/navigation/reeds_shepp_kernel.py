@@ -142,10 +142,12 @@ def solutions(
     extra: np.ndarray,
     mirrors: np.ndarray,
     out: np.ndarray,
+    shortest_only: bool = False,
 ) -> int:
     """Every word's solution into the rows of `out` (MAX_SOLUTIONS x 6, the columns above), in the order
-    of the words and their mirrors; returns how many. The word table (`solver`, `backwards`, `twice`,
-    `extra`: one entry per word) and `mirrors` (sx, sy per mirror) come from reeds_shepp."""
+    of the words and their mirrors; returns how many. With `shortest_only`, only the first shortest, in
+    row 0 (returns 0 or 1). The word table (`solver`, `backwards`, `twice`, `extra`: one entry per word)
+    and `mirrors` (sx, sy per mirror) come from reeds_shepp."""
     c, s = math.cos(phi), math.sin(phi)
     xb, yb = x * c + y * s, x * s - y * c
     n = 0
@@ -154,14 +156,19 @@ def solutions(
         for m in range(mirrors.shape[0]):
             sx, sy = mirrors[m, 0], mirrors[m, 1]
             found, t, u, v = _solve(solver[w], sx * px, sy * py, phi * sx * sy)
-            if found:
-                out[n, 0] = abs(t) + abs(u) * (2.0 if twice[w] else 1.0) + abs(v) + extra[w]
-                out[n, 1] = w
-                out[n, 2] = m
-                out[n, 3] = t
-                out[n, 4] = u
-                out[n, 5] = v
-                n += 1
+            if not found:
+                continue
+            length = abs(t) + abs(u) * (2.0 if twice[w] else 1.0) + abs(v) + extra[w]
+            row = 0 if shortest_only else n
+            if shortest_only and n > 0 and not length < out[0, 0]:
+                continue
+            out[row, 0] = length
+            out[row, 1] = w
+            out[row, 2] = m
+            out[row, 3] = t
+            out[row, 4] = u
+            out[row, 5] = v
+            n = 1 if shortest_only else n + 1
     return n
 
 
@@ -176,17 +183,7 @@ def shortest_length(
     extra: np.ndarray,
     mirrors: np.ndarray,
 ) -> float:
-    """The shortest solution's length in radii (inf if none): `solutions` without keeping them."""
-    c, s = math.cos(phi), math.sin(phi)
-    xb, yb = x * c + y * s, x * s - y * c
-    best = math.inf
-    for w in range(solver.shape[0]):
-        px, py = (xb, yb) if backwards[w] else (x, y)
-        for m in range(mirrors.shape[0]):
-            sx, sy = mirrors[m, 0], mirrors[m, 1]
-            found, t, u, v = _solve(solver[w], sx * px, sy * py, phi * sx * sy)
-            if found:
-                length = abs(t) + abs(u) * (2.0 if twice[w] else 1.0) + abs(v) + extra[w]
-                if length < best:
-                    best = length
-    return best
+    """The shortest solution's length in radii (inf if none)."""
+    out = np.empty((1, 6))
+    n = solutions(x, y, phi, solver, backwards, twice, extra, mirrors, out, True)
+    return out[0, 0] if n else math.inf
