@@ -4,12 +4,18 @@ Section 5: each grid cell is a node of a graph, two are connected if their dista
 threshold d (0.5 m), the connected components are the objects, and components of fewer than a minimum
 number of cells are discarded as noise.
 
-Here the obstacle cells of any layout are painted onto one raster of the finest cell size (a coarse
-cell as a block), so the distance between two cells is the gap between their squares whatever their
-sizes. Cells with a gap of at most g = floor(d / finest cell) are joined by dilating the raster by g
-cells towards +x and +y only (two cells then touch exactly when their gap is <= g) and labelling it
-8-connected (scipy.ndimage.label): one pass, no graph of cell pairs. Deviation: the gap is measured per
-axis (Chebyshev), so cells diagonal to each other are joined up to d * sqrt(2) apart.
+The distance between two cells is the gap between their squares whatever their sizes, in whole
+finest cells: cells with a gap of at most g = floor(d / finest cell) on both axes are joined. Within
+one level of the layout (cells of 2**k finest cells) that is a lattice offset of at most 1 + g // 2**k
+cells on each axis, so each level's obstacle mask is dilated by g // 2**k cells towards +x and +y only
+(two cells then touch exactly when they are joined) and labelled 8-connected (scipy.ndimage.label) on
+the level's own N x N cells. Across levels only cells near a window's edge can be joined: those pairs
+are found among the few cells within g of the edge (scipy.spatial.cKDTree, Chebyshev) and checked
+exactly, and the per-level components they link are merged (scipy.sparse.csgraph). The result is
+that of labelling one raster of the finest cell size with every cell painted as its block, at an
+eighth of the cost on the default three levels; objects are numbered as that raster's labels are, by
+each component's first cell in row-major raster order. Deviation: the gap is measured per axis
+(Chebyshev), so cells diagonal to each other are joined up to d * sqrt(2) apart.
 
 Each object gets the centre and extent of the box on its principal axes (area-weighted second moments
 of its cells, each cell a square), its cell count and its height (highest minus lowest return in its
@@ -27,9 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
 
-from bywire.host.perception.grid import GridSnapshot, ObstacleCells
+from bywire.host.perception.grid import GridLayout, GridSnapshot, ObstacleCells
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -112,21 +120,82 @@ def segment(
     cells = snapshot.obstacle_cells(p_min)
     if len(cells) == 0:
         return Segmentation([], cells, np.zeros(0, np.int64))
-    raster = np.asarray(layout.compose(snapshot.obstacle_mask(p_min)), bool)
+    mask = snapshot.obstacle_mask(p_min)
     gap = math.floor(params.join_distance_m / layout.finest_cell_m + 1e-9)
-    labels, _ = ndimage.label(_dilate_towards_plus(raster, gap), structure=np.ones((3, 3), bool))
-    row, col = _raster_position(snapshot, cells.cells)
-    label = labels[row, col].astype(np.int64)
-    count = np.bincount(label)
-    keep = count[label] >= params.min_cells
-    kept_labels, object_of_cell = np.unique(label[keep], return_inverse=True)
-    out_index = np.full(len(cells), -1, np.int64)
-    out_index[keep] = object_of_cell
-    objects = _describe(cells, snapshot.centre_m, out_index[keep], np.flatnonzero(keep), len(kept_labels))
+    row, col, size = _raster_squares(layout, cells.cells)
+    comp, n_comp = _components(layout, mask, row, col, size, gap)
+    # Objects are numbered by their first cell in row-major raster order (as a raster's labels are).
+    first = np.full(n_comp, np.iinfo(np.int64).max)
+    np.minimum.at(first, comp, row * layout.raster_side + col)
+    kept = np.flatnonzero(np.bincount(comp, minlength=n_comp) >= params.min_cells)
+    object_of_comp = np.full(n_comp, -1, np.int64)
+    object_of_comp[kept[np.argsort(first[kept])]] = np.arange(kept.size)
+    out_index = object_of_comp[comp]
+    which = np.flatnonzero(out_index >= 0)
+    objects = _describe(cells, snapshot.centre_m, out_index[which], which, kept.size)
     return Segmentation(objects, cells, out_index)
 
 
+def _components(
+    layout: GridLayout, mask: npt.NDArray[np.bool_], row: I64, col: I64, size: I64, gap: int
+) -> tuple[I64, int]:
+    """The component (0 .. C - 1) of each cell of `mask` (levels, N, N), in flat order, and C: cells
+    whose squares (`_raster_squares`, in flat order) are at most `gap` finest cells apart on both axes
+    are joined (see the module docstring)."""
+    eight = np.ones((3, 3), bool)
+    node_of_level = []
+    n_nodes = 0
+    for k in range(layout.levels):
+        level = mask[k]
+        m = gap >> k  # (|di| - 1) * 2**k <= gap  <=>  |di| <= 1 + m, per axis
+        labels, count = ndimage.label(_dilate_towards_plus(level, m), structure=eight)
+        node_of_level.append(labels[level].astype(np.int64) + (n_nodes - 1))  # row-major: flat order
+        n_nodes += int(count)
+    node = np.concatenate(node_of_level)
+    if layout.levels == 1 or node.size == 0:
+        return node, n_nodes
+    a, b = _pairs_across_windows(layout, row, col, size, gap)
+    if a.size == 0:
+        return node, n_nodes
+    graph = sparse.coo_matrix((np.ones(a.size, np.int8), (node[a], node[b])), shape=(n_nodes, n_nodes))
+    n_comp, comp = csgraph.connected_components(graph, directed=False)
+    return comp[node].astype(np.int64), int(n_comp)
+
+
+def _pairs_across_windows(layout: GridLayout, row: I64, col: I64, size: I64, gap: int) -> tuple[I64, I64]:
+    """Index pairs (fine, coarse) of cells of different levels whose squares (raster rows, columns,
+    sides) are at most `gap` apart on both axes."""
+    half = layout.raster_side // 2
+    out_a, out_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for k in range(layout.levels - 1):
+        # window k's square on the raster: [lo, hi) on both axes
+        lo, hi = half - (layout.cells_per_side << k) // 2, half + (layout.cells_per_side << k) // 2
+        inside_edge = np.minimum(np.minimum(row - lo, col - lo), np.minimum(hi - row - size, hi - col - size))
+        outside_gap = np.maximum(np.maximum(lo - row - size, row - hi), np.maximum(lo - col - size, col - hi))
+        fine = np.flatnonzero((size == 1 << k) & (inside_edge <= gap))
+        coarse = np.flatnonzero((size > 1 << k) & (outside_gap <= gap))
+        if fine.size == 0 or coarse.size == 0:
+            continue
+        # Chebyshev distance of doubled centres: per axis |2 dc| <= 2 gap + s_fine + s_coarse
+        centre_f = np.column_stack((2 * row[fine] + size[fine], 2 * col[fine] + size[fine]))
+        centre_c = np.column_stack((2 * row[coarse] + size[coarse], 2 * col[coarse] + size[coarse]))
+        reach = 2 * gap + int(size[fine].max()) + int(size[coarse].max())
+        near = cKDTree(centre_f).sparse_distance_matrix(
+            cKDTree(centre_c), reach + 0.5, p=np.inf, output_type="ndarray"
+        )
+        i, j = fine[near["i"]], coarse[near["j"]]
+        bound = 2 * gap + size[i] + size[j]
+        joined = (np.abs(2 * (row[i] - row[j]) + size[i] - size[j]) <= bound) & (
+            np.abs(2 * (col[i] - col[j]) + size[i] - size[j]) <= bound
+        )
+        out_a.append(i[joined])
+        out_b.append(j[joined])
+    return np.concatenate(out_a), np.concatenate(out_b)
+
+
 def _dilate_towards_plus(mask: npt.NDArray[np.bool_], gap: int) -> npt.NDArray[np.bool_]:
+    if gap == 0:
+        return mask
     rows = mask.copy()
     for k in range(1, gap + 1):
         rows[k:] |= mask[:-k]
@@ -136,16 +205,16 @@ def _dilate_towards_plus(mask: npt.NDArray[np.bool_], gap: int) -> npt.NDArray[n
     return out
 
 
-def _raster_position(snapshot: GridSnapshot, flat: npt.NDArray[np.integer]) -> tuple[I64, I64]:
-    """The raster pixel of each cell's lower-left corner (`GridLayout.compose`)."""
-    layout = snapshot.layout
+def _raster_squares(layout: GridLayout, flat: npt.NDArray[np.integer]) -> tuple[I64, I64, I64]:
+    """Each cell's square on the raster of the finest cell size (`GridLayout.compose`): the row and
+    column of its lower-left corner and its side, in finest cells."""
     n = layout.cells_per_side
     level, rest = np.divmod(np.asarray(flat, np.int64), n * n)
     iy, ix = np.divmod(rest, n)
     half = layout.raster_side // 2
     row = np.left_shift(iy - n // 2, level) + half
     col = np.left_shift(ix - n // 2, level) + half
-    return row.astype(np.int64), col.astype(np.int64)
+    return row, col, np.left_shift(1, level)
 
 
 def _describe(
@@ -172,7 +241,8 @@ def _describe(
     u = dx * c + dy * s
     v = -dx * s + dy * c
     half = 0.5 * size * (np.abs(c) + np.abs(s))  # a square's half extent along any axis
-    order = np.argsort(obj, kind="stable")
+    # A stable sort of small integers is a radix sort: 16 bits hold any scene's objects.
+    order = np.argsort(obj.astype(np.int16) if n_objects <= 1 << 15 else obj, kind="stable")
     first = np.concatenate(([0], np.flatnonzero(np.diff(obj[order])) + 1))
     u_lo = np.minimum.reduceat((u - half)[order], first)
     u_hi = np.maximum.reduceat((u + half)[order], first)
@@ -180,26 +250,37 @@ def _describe(
     v_hi = np.maximum.reduceat((v + half)[order], first)
     z_top = np.fmax.reduceat(cells.z_max_m[which][order], first)
     z_bottom = np.fmin.reduceat(cells.z_min_m[which][order], first)
-    n_cells = np.bincount(obj, minlength=n_objects)
+    # Per object in Python floats (the same IEEE arithmetic as numpy's, without its scalar overhead).
+    rows = zip(
+        (0.5 * (u_lo + u_hi)).tolist(),
+        (0.5 * (v_lo + v_hi)).tolist(),
+        (u_hi - u_lo).tolist(),
+        (v_hi - v_lo).tolist(),
+        yaw.tolist(),
+        (z_top - z_bottom).tolist(),  # float32, as measured
+        mx.tolist(),
+        my.tolist(),
+        np.bincount(obj, minlength=n_objects).tolist(),
+        area.tolist(),
+        strict=True,
+    )
     out = []
-    for i in range(n_objects):
-        uc, vc = 0.5 * (u_lo[i] + u_hi[i]), 0.5 * (v_lo[i] + v_hi[i])
-        cy, sy = math.cos(yaw[i]), math.sin(yaw[i])
-        length, width, heading = float(u_hi[i] - u_lo[i]), float(v_hi[i] - v_lo[i]), float(yaw[i])
+    for uc, vc, length, width, yaw_i, height, mx_i, my_i, n_cells, area_i in rows:
+        cy, sy = math.cos(yaw_i), math.sin(yaw_i)
+        heading = yaw_i
         if width > length:
             length, width, heading = width, length, heading + math.pi / 2
         heading = (heading + math.pi / 2) % math.pi - math.pi / 2
-        height = float(z_top[i] - z_bottom[i])
         out.append(
             SegmentedObject(
-                x_m=float(centre_m[0] + mx[i] + cy * uc - sy * vc),
-                y_m=float(centre_m[1] + my[i] + sy * uc + cy * vc),
+                x_m=centre_m[0] + mx_i + cy * uc - sy * vc,
+                y_m=centre_m[1] + my_i + sy * uc + cy * vc,
                 length_m=length,
                 width_m=width,
                 yaw_rad=heading,
                 height_m=height if math.isfinite(height) else 0.0,
-                cells=int(n_cells[i]),
-                area_m2=float(area[i]),
+                cells=n_cells,
+                area_m2=area_i,
             )
         )
     return out

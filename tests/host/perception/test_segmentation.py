@@ -10,6 +10,7 @@ import pytest
 from grid_scenes import Box, cast
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import ndimage
 
 from bywire.host.perception.grid import GridLayout, GridSnapshot, OccupancyGrid
 from bywire.host.perception.segmentation import ParticipantShape, SegmentationParams, SegmentedObject, segment
@@ -131,6 +132,50 @@ def test_the_components_are_those_of_the_cell_graph(
     for i, k in enumerate(seg.object_of_cell):
         got.setdefault(int(k), set()).add(i)
     assert sorted(got.values(), key=min) == want
+
+
+def raster_numbering(snapshot: GridSnapshot, d_m: float, min_cells: int) -> np.ndarray:
+    """The object index of each obstacle cell as one raster of the finest cell size numbers them: every
+    cell painted as its block, dilated by g = floor(d / finest cell) towards +x and +y, labelled
+    8-connected; objects in the order of their labels, too-small ones -1."""
+    layout = snapshot.layout
+    raster = np.asarray(layout.compose(snapshot.obstacle_mask()), bool)
+    g = math.floor(d_m / layout.finest_cell_m + 1e-9)
+    grown = raster.copy()
+    for k in range(1, g + 1):
+        grown[k:] |= raster[:-k]
+    wide = grown.copy()
+    for k in range(1, g + 1):
+        wide[:, k:] |= grown[:, :-k]
+    labels, _ = ndimage.label(wide, structure=np.ones((3, 3), bool))
+    n = layout.cells_per_side
+    level, rest = np.divmod(np.flatnonzero(snapshot.obstacle_mask()), n * n)
+    iy, ix = np.divmod(rest, n)
+    half = layout.raster_side // 2
+    label = labels[((iy - n // 2) << level) + half, ((ix - n // 2) << level) + half]
+    keep = np.bincount(label)[label] >= min_cells
+    out = np.full(label.size, -1)
+    out[keep] = np.unique(label[keep], return_inverse=True)[1]
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    density=st.floats(0.005, 0.3),
+    d_m=st.sampled_from([0.0, 0.15, 0.3, 0.5, 0.9, 2.0, 5.0]),
+    levels=st.integers(1, 4),
+    min_cells=st.integers(1, 4),
+)
+def test_objects_are_numbered_as_the_labels_of_one_fine_raster(
+    seed: int, density: float, d_m: float, levels: int, min_cells: int
+) -> None:
+    # The levels are labelled each on its own cells and joined across the windows' edges; the result
+    # must be the one raster's, in its order, whatever the layout and d.
+    layout = GridLayout(0.15, 24, levels)
+    mask = (np.random.default_rng(seed).random(layout.shape) < density) & layout.active_mask()
+    seg = segment(snapshot_of(layout, mask), SegmentationParams(join_distance_m=d_m, min_cells=min_cells))
+    assert np.array_equal(seg.object_of_cell, raster_numbering(snapshot_of(layout, mask), d_m, min_cells))
 
 
 def test_the_participant_shape_takes_cars_and_people_not_walls_or_kerbs() -> None:
