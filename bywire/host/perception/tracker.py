@@ -58,6 +58,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -211,11 +212,46 @@ def innovation_costs(
     """Squared Mahalanobis distances d2 (N, D) and negative log-likelihoods (N, D) of every track's
     predicted position against every detection z (D, 2), under S_i = O P_i O^T + R."""
     s = p[:, :2, :2] + r
-    s_inv = np.linalg.inv(s)
     y = z[None, :, :] - x[:, None, :2]
-    d2 = np.einsum("ndk,nkl,ndl->nd", y, s_inv, y)
+    d2 = _mahalanobis2(y, np.linalg.inv(s)[:, None])
     log_det = np.log(np.linalg.det(2.0 * np.pi * s))
     return d2, 0.5 * (d2 + log_det[:, None])
+
+
+def gated_costs(
+    x: FloatArray, p: FloatArray, z: FloatArray, r: FloatArray, gate_d2: float
+) -> tuple[FloatArray, FloatArray]:
+    """`innovation_costs` where a pair can pass the gate d2 <= gate_d2, inf elsewhere: the same numbers
+    on those pairs, computed only for them. d2 >= |y|^2 / lambda_max(S) >= |y|^2 / trace(S), so a pair
+    with |y|^2 > gate_d2 trace(S) cannot pass (a track meets a handful of the detections around it)."""
+    n, d = x.shape[0], z.shape[0]
+    d2 = np.full((n, d), np.inf)
+    nll = np.full((n, d), np.inf)
+    if n == 0 or d == 0:
+        return d2, nll
+    s = p[:, :2, :2] + r
+    reach2 = gate_d2 * (s[:, 0, 0] + s[:, 1, 1]) * (1.0 + 1e-9)  # the margin: rounding of |y|^2
+    ex = z[None, :, 0] - x[:, None, 0]
+    ey = z[None, :, 1] - x[:, None, 1]
+    ti, dj = np.nonzero(ex * ex + ey * ey <= reach2[:, None])
+    y = np.stack((ex[ti, dj], ey[ti, dj]), axis=-1)
+    pair_d2 = _mahalanobis2(y, np.linalg.inv(s)[ti])
+    log_det = np.log(np.linalg.det(2.0 * np.pi * s))
+    d2[ti, dj] = pair_d2
+    nll[ti, dj] = 0.5 * (pair_d2 + log_det[ti])
+    return d2, nll
+
+
+def _mahalanobis2(y: FloatArray, s_inv: npt.NDArray[np.floating[Any]]) -> FloatArray:
+    """y^T S^-1 y over the last axis of y (..., 2), S^-1 (..., 2, 2) broadcast against it: the terms in
+    one fixed order, so that a pair's value does not depend on which other pairs are computed with it."""
+    y0, y1 = y[..., 0], y[..., 1]
+    return (
+        y0 * s_inv[..., 0, 0] * y0
+        + y0 * s_inv[..., 0, 1] * y1
+        + y1 * s_inv[..., 1, 0] * y0
+        + y1 * s_inv[..., 1, 1] * y1
+    )
 
 
 def assign(
@@ -276,6 +312,7 @@ class Tracker:
         self.params = params or TrackerParams()
         p = self.params
         self._r = np.diag([p.position_sigma_m**2, p.position_sigma_m**2])
+        self._gate_d2 = p.gate_d2
         self._t_s: float | None = None
         self._next_id = 1
         self._x = np.zeros((0, 4))
@@ -306,8 +343,8 @@ class Tracker:
         if not np.isfinite(z).all() or not np.isfinite(boxes).all():
             raise ValueError("detections must be finite")
 
-        d2, nll = innovation_costs(self._x, self._p, z, self._r)
-        gate = p.gate_d2
+        gate = self._gate_d2
+        d2, nll = gated_costs(self._x, self._p, z, self._r, gate)
         miss_cost = 0.5 * (gate + np.log(np.linalg.det(2.0 * np.pi * (self._p[:, :2, :2] + self._r))))
         rows, cols = assign(nll, d2 <= gate, miss_cost)
 
@@ -346,11 +383,12 @@ class Tracker:
 
         self._moving = classify_moving(self._x[:, 2:], self._p[:, 2:, 2:], self._moving, self._hits, p)
         published = (self._hits >= p.publish_hits) & (self._confidence >= p.publish_confidence)
-        return [self._track(int(i), int(taken[i])) for i in np.flatnonzero(published)]
+        which = np.flatnonzero(published)
+        return self._tracks(which, taken[which])
 
     def all_tracks(self) -> list[Track]:
         """Every track held, published or not (for inspection and tests)."""
-        return [self._track(i, -1) for i in range(len(self))]
+        return self._tracks(np.arange(len(self)), np.full(len(self), -1, np.int64))
 
     def _select(self, keep: npt.NDArray[np.bool_]) -> None:
         for name in ("_x", "_p", "_box", "_ids", "_hits", "_misses", "_confidence", "_born_s", "_moving"):
@@ -373,23 +411,44 @@ class Tracker:
         self._born_s = np.concatenate([self._born_s, np.full(n, t_s)])
         self._moving = np.concatenate([self._moving, np.zeros(n, bool)])
 
-    def _track(self, i: int, detection: int) -> Track:
-        x = self._x[i]
+    def _tracks(self, which: IntArray, detection: IntArray) -> list[Track]:
         assert self._t_s is not None
-        return Track(
-            id=int(self._ids[i]),
-            x_m=float(x[0]),
-            y_m=float(x[1]),
-            vx_mps=float(x[2]),
-            vy_mps=float(x[3]),
-            covariance=self._p[i].copy(),
-            length_m=float(self._box[i, 0]),
-            width_m=float(self._box[i, 1]),
-            yaw_rad=float(self._box[i, 2]),
-            moving=bool(self._moving[i]),
-            age_s=float(self._t_s - self._born_s[i]),
-            hits=int(self._hits[i]),
-            misses=int(self._misses[i]),
-            confidence=float(self._confidence[i]),
-            detection=detection,
+        x, box = self._x[which], self._box[which]
+        covariance = self._p[which]  # a copy: the tracks do not share the filter's state
+        columns = zip(
+            self._ids[which].tolist(),
+            x[:, 0].tolist(),
+            x[:, 1].tolist(),
+            x[:, 2].tolist(),
+            x[:, 3].tolist(),
+            box[:, 0].tolist(),
+            box[:, 1].tolist(),
+            box[:, 2].tolist(),
+            self._moving[which].tolist(),
+            (self._t_s - self._born_s[which]).tolist(),
+            self._hits[which].tolist(),
+            self._misses[which].tolist(),
+            self._confidence[which].tolist(),
+            detection.tolist(),
+            strict=True,
         )
+        return [
+            Track(
+                id=c[0],
+                x_m=c[1],
+                y_m=c[2],
+                vx_mps=c[3],
+                vy_mps=c[4],
+                covariance=covariance[k],
+                length_m=c[5],
+                width_m=c[6],
+                yaw_rad=c[7],
+                moving=c[8],
+                age_s=c[9],
+                hits=c[10],
+                misses=c[11],
+                confidence=c[12],
+                detection=c[13],
+            )
+            for k, c in enumerate(columns)
+        ]

@@ -15,6 +15,7 @@ from bywire.host.perception.tracker import (
     Tracker,
     TrackerParams,
     assign,
+    gated_costs,
     innovation_costs,
     kalman_update,
     predict,
@@ -196,6 +197,30 @@ def test_innovation_costs_match_the_gaussian_density():
     pdf = np.exp(-0.5 * y @ np.linalg.inv(s) @ y) / np.sqrt(np.linalg.det(2 * np.pi * s))
     assert d2[0, 0] == pytest.approx(y @ np.linalg.inv(s) @ y)
     assert nll[0, 0] == pytest.approx(-np.log(pdf))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(0, 40),
+    d=st.integers(0, 40),
+    spread_m=st.floats(0.5, 60.0),
+    gate_d2=st.floats(0.5, 30.0),
+)
+def test_gated_costs_are_the_full_costs_wherever_the_gate_can_pass(
+    seed: int, n: int, d: int, spread_m: float, gate_d2: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, spread_m, (n, 4))
+    a = rng.normal(0.0, 1.0, (n, 4, 4))
+    p = a @ np.swapaxes(a, 1, 2) + np.eye(4) * rng.uniform(0.01, 2.0, (n, 1, 1))
+    z = rng.normal(0.0, spread_m, (d, 2))
+    r = np.diag([0.09, 0.09])
+    d2, nll = innovation_costs(x, p, z, r)
+    g2, gnll = gated_costs(x, p, z, r, gate_d2)
+    computed = np.isfinite(g2)
+    assert np.array_equal(g2[computed], d2[computed]) and np.array_equal(gnll[computed], nll[computed])
+    assert np.all(d2[~computed] > gate_d2) and np.all(np.isinf(gnll[~computed]))
 
 
 costs = st.floats(-5.0, 5.0, allow_nan=False)
