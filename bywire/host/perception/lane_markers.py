@@ -43,6 +43,7 @@ end are 1 m apart along the road, which shifts markings along themselves, not ac
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,8 +181,7 @@ def _fit_plane(
     # fits it as well as the road. RANSAC picks the plane with the most points within half the
     # tolerance; the road has the most, as the rings near the car, the densest, lie on it.
     xb, yb, zb = x[band], y[band], z[band]
-    rng = np.random.default_rng(0)  # fixed: the same scan always gives the same plane
-    tri = rng.integers(0, xb.size, size=(_RANSAC_PLANES, 3))
+    tri = _ransac_samples(xb.size)
     p0 = np.stack((xb[tri[:, 0]], yb[tri[:, 0]], zb[tri[:, 0]]), axis=1)
     e1 = np.stack((xb[tri[:, 1]], yb[tri[:, 1]], zb[tri[:, 1]]), axis=1) - p0
     e2 = np.stack((xb[tri[:, 2]], yb[tri[:, 2]], zb[tri[:, 2]]), axis=1) - p0
@@ -200,8 +200,13 @@ def _fit_plane(
     probe = slice(None, None, _RANSAC_STRIDE)
     xp, yp, zp = (v[probe].astype(np.float32) for v in (xb, yb, zb))
     coef = np.stack((a, b, c)).astype(np.float32)
-    res = zp[None, :] - (coef[0][:, None] + coef[1][:, None] * xp[None, :] + coef[2][:, None] * yp[None, :])
-    inliers = np.count_nonzero(np.abs(res) <= np.float32(0.5 * params.ground_tolerance_m), axis=1)
+    # zp - ((a + b x) + c y), in place: one (planes, probes) buffer instead of five
+    res = np.multiply(coef[1][:, None], xp[None, :])
+    np.add(coef[0][:, None], res, out=res)
+    res += coef[2][:, None] * yp[None, :]
+    np.subtract(zp[None, :], res, out=res)
+    np.abs(res, out=res)
+    inliers = np.count_nonzero(res <= np.float32(0.5 * params.ground_tolerance_m), axis=1)
     best = int(np.argmax(inliers))
     plane: tuple[float, float, float] = (float(a[best]), float(b[best]), float(c[best]))
     for _ in range(2):  # least squares on the inliers, twice: the sample's three points are noisy
@@ -211,6 +216,15 @@ def _fit_plane(
             break
         plane = refit
     return plane
+
+
+@functools.lru_cache(maxsize=64)
+def _ransac_samples(n: int) -> npt.NDArray[np.int64]:
+    """The RANSAC's three points per candidate plane among n band points: fixed (a generator seeded 0),
+    so that the same scan always gives the same plane; a function of n alone, drawn once per n."""
+    out = np.random.default_rng(0).integers(0, n, size=(_RANSAC_PLANES, 3))
+    out.setflags(write=False)
+    return out
 
 
 def _lsq_plane(
@@ -293,8 +307,10 @@ def extract_features(
     adjacent = (beam[1:] == beam[:-1]) & (np.diff(idx) == 1)  # subset i and i + 1 are scan neighbours
 
     paint = _paint(x, y, refl, beam, ground, adjacent, params)
-    # A beam's angle between points: a turn over its points per turn (in the whole scan).
-    per_turn = np.bincount(beam_all.astype(np.intp), minlength=HDL64E_BEAMS)
+    # A beam's angle between points: a turn over its points per turn (in the whole scan); the scan is
+    # grouped by beam here, so each beam's count is where its group ends less where it starts.
+    beam_ids = np.arange(max(HDL64E_BEAMS, int(beam_all[-1]) + 1) + 1, dtype=beam_all.dtype)
+    per_turn = np.diff(np.searchsorted(beam_all, beam_ids))
     dphi = (2.0 * np.pi / np.maximum(per_turn, 1)).astype(np.float32)
     curb_xy = _curbs(x, y, np.sqrt(r2), height, beam, idx, ground, dphi, params)
 
@@ -402,11 +418,12 @@ def _curbs(
     )
     j = ends[i]
     # The ring must run on without a break between them: same beam, no more than curb_max_missing
-    # points missing from the scan at any place in between (an obstacle's points are not near).
-    brk = np.zeros(n, np.int32)
-    brk[1:] = np.cumsum((bs[1:] != bs[:-1]) | (np.diff(idx[sub]) > params.curb_max_missing + 1))
+    # points missing from the scan at any place in between (an obstacle's points are not near). A break
+    # before point k of the ring counts at k; i and j are on one piece when none counts in (i, j].
+    breaks = 1 + np.flatnonzero((bs[1:] != bs[:-1]) | (np.diff(idx[sub]) > params.curb_max_missing + 1))
     dz = dz_all[i]
-    hit = (brk[j] == brk[i]) & np.where(dz > 0.0, ground[sub[i]], ground[sub[j]])  # lower side on the road
+    same_piece = np.searchsorted(breaks, i, side="right") == np.searchsorted(breaks, j, side="right")
+    hit = same_piece & np.where(dz > 0.0, ground[sub[i]], ground[sub[j]])  # lower side on the road
     mag_all = mag_all[i]
     i, j, mag = i[hit], j[hit], mag_all[hit].astype(np.float64)
     if i.size == 0:
