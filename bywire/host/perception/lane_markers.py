@@ -288,16 +288,16 @@ def extract_features(
         if mask.shape != (n,):
             raise ValueError(f"ground_mask has shape {mask.shape}, the scan {n} points")
         mask = mask if order is None else mask[order]
-    # Only points near the ground can be paint or the foot of a curb: the rest (walls, cars, trees;
-    # a third of a scan) is dropped before anything else is computed. Their position in the scan is
-    # kept (`idx`) so that neighbours in firing order are still known.
-    z_all = xyz[:, 2]
+    # Only points near the ground and in range can be paint or the foot of a curb: the rest (walls,
+    # cars, trees, the far road; a third of a scan) is dropped before anything else is computed. Their
+    # position in the scan is kept (`idx`) so that neighbours in firing order are still known.
+    x_all, y_all, z_all = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    r2_all = x_all * x_all + y_all * y_all
     cand = np.abs(z_all + np.float32(scan.sensor_height_m)) <= params.ground_band_m + params.curb_step_max_m
+    cand &= r2_all >= np.float32(params.min_range_m**2)
+    cand &= r2_all <= np.float32(params.max_range_m**2)
     idx = np.flatnonzero(cand)
-    x, y, z = xyz[idx, 0], xyz[idx, 1], z_all[idx]
-    r2 = x * x + y * y
-    keep = (r2 >= np.float32(params.min_range_m**2)) & (r2 <= np.float32(params.max_range_m**2))
-    idx, x, y, z, r2 = idx[keep], x[keep], y[keep], z[keep], r2[keep]
+    x, y, z, r2 = x_all[idx], y_all[idx], z_all[idx], r2_all[idx]
     beam, refl = beam_all[idx], refl_all[idx]
     plane = _fit_plane(x, y, z, scan.sensor_height_m, params) if idx.size else no_plane
     height = z - (np.float32(plane[0]) + np.float32(plane[1]) * x + np.float32(plane[2]) * y)
@@ -312,7 +312,7 @@ def extract_features(
     beam_ids = np.arange(max(HDL64E_BEAMS, int(beam_all[-1]) + 1) + 1, dtype=beam_all.dtype)
     per_turn = np.diff(np.searchsorted(beam_all, beam_ids))
     dphi = (2.0 * np.pi / np.maximum(per_turn, 1)).astype(np.float32)
-    curb_xy = _curbs(x, y, np.sqrt(r2), height, beam, idx, ground, dphi, params)
+    curb_xy = _curbs(x, y, r2, height, beam, idx, ground, dphi, params)
 
     ground_sorted = np.zeros(n, bool)
     ground_sorted[idx] = ground
@@ -386,7 +386,7 @@ def _isolated(
 def _curbs(
     x: npt.NDArray[np.float32],
     y: npt.NDArray[np.float32],
-    r: npt.NDArray[np.float32],
+    r2: npt.NDArray[np.float32],
     height: npt.NDArray[np.float32],
     beam: npt.NDArray[np.int16],
     idx: npt.NDArray[np.intp],
@@ -405,7 +405,7 @@ def _curbs(
     hs[1:-1] = (hs[:-2] + hs[1:-1] + hs[2:]) * np.float32(1.0 / 3.0)
     # Each window ends about curb_window_m further along the ring: at range r a beam's points are
     # r * dphi apart (dphi: a turn over the beam's points per turn).
-    lag = np.ceil(np.float32(params.curb_window_m) / (r[sub] * dphi_rad[bs])).astype(np.intp)
+    lag = np.ceil(np.float32(params.curb_window_m) / (np.sqrt(r2[sub]) * dphi_rad[bs])).astype(np.intp)
     ends = np.arange(n) + lag
     inside = ends < n
     dz_all = hs[np.minimum(ends, n - 1)] - hs

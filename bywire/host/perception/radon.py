@@ -175,9 +175,11 @@ class RadonSpectrum:
         wx = _lanczos(kx[:, None] - cx).astype(np.float32)
         wy = _lanczos(ky[:, None] - cy).astype(np.float32)
         out = np.empty(kx.size, dtype=np.complex64)
+        flat, width = self._ext.reshape(-1), self._ext.shape[1]
         for lo in range(0, kx.size, _SLICE_CHUNK):  # bounded memory: chunk x (2A)^2 samples
             sl = slice(lo, lo + _SLICE_CHUNK)
-            vals = self._ext[(cy[sl] + a + half)[:, :, None], (cx[sl] + a)[:, None, :]]
+            # ext[row, col] as one take from the flat array (a third cheaper than 2-D fancy indexing)
+            vals = flat.take((cy[sl] + a + half)[:, :, None] * width + (cx[sl] + a)[:, None, :])
             out[sl] = np.einsum("mij,mi,mj->m", vals, wy[sl], wx[sl])
         return out.reshape(folded.size, self._rho.size)
 
@@ -222,13 +224,23 @@ class RadonSpectrum:
         search; biased towards the grid's axes by up to 0.4 deg (a ray along an axis meets the samples,
         one off it falls between them and reads a blurred ridge), which a fine `energy` search undoes."""
         angles = np.atleast_1d(np.asarray(angles_rad, dtype=np.float64))
-        if self._power is None:
-            self._power = (self._ext.real**2 + self._ext.imag**2).astype(np.float32)
         folded, _ = _canonical(angles)
         kx, ky = self._rays(folded)
         a, half = LANCZOS_A, self.size // 2
         coords = np.stack(((ky + a + half).ravel(), (kx + a).ravel()))
-        power = ndimage.map_coordinates(self._power, coords, order=1, mode="nearest", prefilter=False)
+        # The power only over the box the rays' bilinear samples touch (a window of a few degrees is a
+        # thin wedge of the spectrum). Shifting a coordinate by a whole number is exact, and the box
+        # keeps the spectrum's own edges where it reaches them, so the samples are the same.
+        lo = np.maximum(np.floor(coords.min(axis=1)).astype(np.intp) - 1, 0)
+        hi = np.minimum(np.floor(coords.max(axis=1)).astype(np.intp) + 3, self._ext.shape)
+        if self._power is not None or np.prod(hi - lo) >= self._ext.size // 2:
+            if self._power is None:  # most of it: the whole power, kept for the next search
+                self._power = (self._ext.real**2 + self._ext.imag**2).astype(np.float32)
+            box, lo = self._power, np.zeros(2, np.intp)
+        else:
+            part = self._ext[lo[0] : hi[0], lo[1] : hi[1]]
+            box = (part.real**2 + part.imag**2).astype(np.float32)
+        power = ndimage.map_coordinates(box, coords - lo[:, None], order=1, mode="nearest", prefilter=False)
         power = power.reshape(angles.size, self._rho.size)
         weight = self._parseval_weight(highpass_m).astype(np.float32)
         return np.einsum("ij,j->i", power, weight).astype(np.float64)  # einsum: no BLAS threads

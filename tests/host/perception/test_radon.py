@@ -191,6 +191,27 @@ def test_dominant_direction_is_that_of_the_parallel_lines() -> None:
     assert abs(math.degrees(near - math.radians(-60.0))) <= 0.05
 
 
+@settings(max_examples=30, deadline=None)
+@given(
+    centre=st.floats(-4.0, 4.0),
+    half_width=st.sampled_from([0.0, 0.01, 0.07, 0.3, 0.8]),
+    count=st.integers(1, 12),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_a_coarse_window_reads_the_same_energy_as_the_whole_power_spectrum(
+    centre: float, half_width: float, count: int, seed: int
+) -> None:
+    # A narrow window squares only the part of the spectrum its rays touch; the energies must be
+    # those read from the whole power spectrum, near the spectrum's edges and axes too.
+    image = (np.random.default_rng(seed).random((64, 64)) < 0.05).astype(np.float32)
+    angles = centre + np.linspace(-half_width, half_width, count)
+    whole = RadonSpectrum(image, CELL_M, disc=True)
+    whole.coarse_energy(np.linspace(-math.pi / 2, math.pi / 2, 180, endpoint=False))  # the whole
+    want = whole.coarse_energy(angles)
+    got = RadonSpectrum(image, CELL_M, disc=True).coarse_energy(angles)
+    assert np.array_equal(got, want)
+
+
 def test_profile_peaks_keep_the_stronger_of_close_peaks() -> None:
     offsets = np.arange(-100, 100) * 0.1
     profile = (
