@@ -43,6 +43,11 @@ F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 
+# Cells near a window's edge are paired all with all up to this many pairs (a street has a few
+# hundred on either side: 35 000 pairs on KITTI), beyond it through a k-d tree.
+_ALL_PAIRS_MAX = 1 << 17
+
+
 @dataclass(frozen=True)
 class SegmentationParams:
     # d of section 5.
@@ -176,14 +181,16 @@ def _pairs_across_windows(layout: GridLayout, row: I64, col: I64, size: I64, gap
         coarse = np.flatnonzero((size > 1 << k) & (outside_gap <= gap))
         if fine.size == 0 or coarse.size == 0:
             continue
-        # Chebyshev distance of doubled centres: per axis |2 dc| <= 2 gap + s_fine + s_coarse
-        centre_f = np.column_stack((2 * row[fine] + size[fine], 2 * col[fine] + size[fine]))
-        centre_c = np.column_stack((2 * row[coarse] + size[coarse], 2 * col[coarse] + size[coarse]))
-        reach = 2 * gap + int(size[fine].max()) + int(size[coarse].max())
-        near = cKDTree(centre_f).sparse_distance_matrix(
-            cKDTree(centre_c), reach + 0.5, p=np.inf, output_type="ndarray"
-        )
-        i, j = fine[near["i"]], coarse[near["j"]]
+        if fine.size * coarse.size <= _ALL_PAIRS_MAX:  # a street's few hundred: every pair
+            i, j = np.repeat(fine, coarse.size), np.tile(coarse, fine.size)
+        else:  # Chebyshev distance of doubled centres: per axis |2 dc| <= 2 gap + s_fine + s_coarse
+            centre_f = np.column_stack((2 * row[fine] + size[fine], 2 * col[fine] + size[fine]))
+            centre_c = np.column_stack((2 * row[coarse] + size[coarse], 2 * col[coarse] + size[coarse]))
+            reach = 2 * gap + int(size[fine].max()) + int(size[coarse].max())
+            near = cKDTree(centre_f).sparse_distance_matrix(
+                cKDTree(centre_c), reach + 0.5, p=np.inf, output_type="ndarray"
+            )
+            i, j = fine[near["i"]], coarse[near["j"]]
         bound = 2 * gap + size[i] + size[j]
         joined = (np.abs(2 * (row[i] - row[j]) + size[i] - size[j]) <= bound) & (
             np.abs(2 * (col[i] - col[j]) + size[i] - size[j]) <= bound

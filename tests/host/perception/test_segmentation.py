@@ -4,6 +4,7 @@ components at distance d, the minimum size, and each object's box and height."""
 from __future__ import annotations
 
 import math
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
+from bywire.host.perception import segmentation
 from bywire.host.perception.grid import GridLayout, GridSnapshot, OccupancyGrid
 from bywire.host.perception.segmentation import ParticipantShape, SegmentationParams, SegmentedObject, segment
 
@@ -170,12 +172,16 @@ def raster_numbering(snapshot: GridSnapshot, d_m: float, min_cells: int) -> np.n
 def test_objects_are_numbered_as_the_labels_of_one_fine_raster(
     seed: int, density: float, d_m: float, levels: int, min_cells: int
 ) -> None:
-    # The levels are labelled each on its own cells and joined across the windows' edges; the result
-    # must be the one raster's, in its order, whatever the layout and d.
+    # The levels are labelled each on its own cells and joined across the windows' edges (the cells
+    # near an edge paired all with all, or through a k-d tree when there are many); the result must
+    # be the one raster's, in its order, whatever the layout and d.
     layout = GridLayout(0.15, 24, levels)
     mask = (np.random.default_rng(seed).random(layout.shape) < density) & layout.active_mask()
-    seg = segment(snapshot_of(layout, mask), SegmentationParams(join_distance_m=d_m, min_cells=min_cells))
-    assert np.array_equal(seg.object_of_cell, raster_numbering(snapshot_of(layout, mask), d_m, min_cells))
+    want = raster_numbering(snapshot_of(layout, mask), d_m, min_cells)
+    for all_pairs_max in (1 << 17, 0):
+        with mock.patch.object(segmentation, "_ALL_PAIRS_MAX", all_pairs_max):
+            seg = segment(snapshot_of(layout, mask), SegmentationParams(d_m, min_cells))
+        assert np.array_equal(seg.object_of_cell, want)
 
 
 def test_the_participant_shape_takes_cars_and_people_not_walls_or_kerbs() -> None:
