@@ -335,8 +335,8 @@ def _paint(
     params: MarkerParams,
 ) -> BoolArray:
     n = x.size
-    med = _beam_medians(refl[ground], beam[ground])
-    bright = ground & (refl > med[beam] + np.float32(params.paint_contrast))  # NaN median: never bright
+    threshold = _beam_medians(refl[ground], beam[ground]) + np.float32(params.paint_contrast)
+    bright = ground & (refl > threshold[beam])  # NaN median: never bright
     if not bright.any():
         return bright
     # A dark point between two bright neighbours is a speck of worn paint, not the road: filled.
@@ -358,8 +358,10 @@ def _paint(
     ok_after = (ends < n - 1) & adjacent[after] & ground[np.minimum(ends + 1, n - 1)]
     keep = (width <= params.paint_max_width_m) & ok_before & ok_after
     keep &= _isolated(0.5 * (x[starts] + x[ends]), 0.5 * (y[starts] + y[ends]), beam[starts], params)
-    run_of = np.cumsum(first) - 1
-    return bright & keep[run_of]
+    lit = np.flatnonzero(bright)
+    out = np.zeros(n, bool)
+    out[lit] = keep[np.searchsorted(starts, lit, side="right") - 1]  # the run each bright point is in
+    return out
 
 
 def _isolated(
