@@ -407,10 +407,13 @@ def _curbs(
     hs[1:-1] = (hs[:-2] + hs[1:-1] + hs[2:]) * np.float32(1.0 / 3.0)
     # Each window ends about curb_window_m further along the ring: at range r a beam's points are
     # r * dphi apart (dphi: a turn over the beam's points per turn).
-    lag = np.ceil(np.float32(params.curb_window_m) / (np.sqrt(r2[sub]) * dphi_rad[bs])).astype(np.intp)
-    ends = np.arange(n) + lag
+    spacing = np.sqrt(r2[sub])
+    spacing *= dphi_rad[bs]
+    lag = np.ceil(np.divide(np.float32(params.curb_window_m), spacing, out=spacing), out=spacing)
+    ends = lag.astype(np.intp)
+    ends += np.arange(n)
     inside = ends < n
-    dz_all = hs[np.minimum(ends, n - 1)] - hs
+    dz_all = np.take(hs, ends, mode="clip") - hs  # past the end: the last point (outside anyway)
     mag_all = np.abs(dz_all)
     # the rise first (few windows have one), then the rest on those only
     i = np.flatnonzero(
