@@ -81,6 +81,7 @@ _PLANE_STRIDE = 4
 # Scored on every 8th of the fitted points (2-3 k).
 _RANSAC_PLANES = 64
 _RANSAC_STRIDE = 8
+_RANSAC_CHUNK = 8  # candidates scored at a time: 8 x 3 k residuals, 100 kB
 # A candidate steeper than this is a wall or a car's side, not a road (the steepest streets are 20 %).
 _MAX_TILT_RAD = math.radians(15.0)
 
@@ -200,13 +201,7 @@ def _fit_plane(
     probe = slice(None, None, _RANSAC_STRIDE)
     xp, yp, zp = (v[probe].astype(np.float32) for v in (xb, yb, zb))
     coef = np.stack((a, b, c)).astype(np.float32)
-    # zp - ((a + b x) + c y), in place: one (planes, probes) buffer instead of five
-    res = np.multiply(coef[1][:, None], xp[None, :])
-    np.add(coef[0][:, None], res, out=res)
-    res += coef[2][:, None] * yp[None, :]
-    np.subtract(zp[None, :], res, out=res)
-    np.abs(res, out=res)
-    inliers = np.count_nonzero(res <= np.float32(0.5 * params.ground_tolerance_m), axis=1)
+    inliers = _inlier_counts(coef, xp, yp, zp, np.float32(0.5 * params.ground_tolerance_m))
     best = int(np.argmax(inliers))
     plane: tuple[float, float, float] = (float(a[best]), float(b[best]), float(c[best]))
     for _ in range(2):  # least squares on the inliers, twice: the sample's three points are noisy
@@ -216,6 +211,35 @@ def _fit_plane(
             break
         plane = refit
     return plane
+
+
+def _inlier_counts(
+    coef: npt.NDArray[np.float32],
+    x: npt.NDArray[np.float32],
+    y: npt.NDArray[np.float32],
+    z: npt.NDArray[np.float32],
+    tolerance: np.float32,
+) -> npt.NDArray[np.intp]:
+    """Per candidate plane (coef: a, b, c rows), the points with |z - ((a + b x) + c y)| <= tolerance:
+    a few planes at a time in two buffers that stay in the cache (all 64 planes' residuals at once
+    were a megabyte, five times over)."""
+    n_planes = coef.shape[1]
+    counts = np.empty(n_planes, np.intp)
+    res = np.empty((_RANSAC_CHUNK, x.size), np.float32)
+    tmp = np.empty_like(res)
+    within = np.empty(res.shape, bool)
+    for lo in range(0, n_planes, _RANSAC_CHUNK):
+        k = min(_RANSAC_CHUNK, n_planes - lo)
+        r, t, w = res[:k], tmp[:k], within[:k]
+        np.multiply(coef[1, lo : lo + k, None], x, out=r)
+        np.add(coef[0, lo : lo + k, None], r, out=r)
+        np.multiply(coef[2, lo : lo + k, None], y, out=t)
+        r += t
+        np.subtract(z, r, out=r)
+        np.abs(r, out=r)
+        np.less_equal(r, tolerance, out=w)
+        counts[lo : lo + k] = np.count_nonzero(w, axis=1)
+    return counts
 
 
 @functools.lru_cache(maxsize=64)
