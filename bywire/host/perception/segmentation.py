@@ -162,41 +162,59 @@ def _components(
     a, b = _pairs_across_windows(layout, row, col, size, gap)
     if a.size == 0:
         return node, n_nodes
-    graph = sparse.coo_matrix((np.ones(a.size, np.int8), (node[a], node[b])), shape=(n_nodes, n_nodes))
-    n_comp, comp = csgraph.connected_components(graph, directed=False)
-    return comp[node].astype(np.int64), int(n_comp)
+    # Merge the per-level components the pairs link: a graph of those components only.
+    linked, end = np.unique(np.concatenate((node[a], node[b])), return_inverse=True)
+    graph = sparse.coo_matrix(
+        (np.ones(a.size, np.int8), (end[: a.size], end[a.size :])), shape=(linked.size, linked.size)
+    )
+    _, merged = csgraph.connected_components(graph, directed=False)
+    label = np.arange(n_nodes)
+    label[linked] = n_nodes + merged  # apart from every unlinked component's own number
+    numbers, comp = np.unique(label, return_inverse=True)
+    return comp[node].astype(np.int64), int(numbers.size)
 
 
 def _pairs_across_windows(layout: GridLayout, row: I64, col: I64, size: I64, gap: int) -> tuple[I64, I64]:
     """Index pairs (fine, coarse) of cells of different levels whose squares (raster rows, columns,
-    sides) are at most `gap` apart on both axes."""
+    sides; the cells level by level, as in flat order) are at most `gap` apart on both axes."""
     half = layout.raster_side // 2
+    # doubled centres: two squares are within gap on an axis when |2 dc| <= 2 gap + s_fine + s_coarse
+    centre_r, centre_c = 2 * row + size, 2 * col + size
+    starts = np.searchsorted(size, 1 << np.arange(layout.levels))
     out_a, out_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for k in range(layout.levels - 1):
-        # window k's square on the raster: [lo, hi) on both axes
+        # window k's square on the raster: [lo, hi) on both axes; its cells, then the coarser ones
         lo, hi = half - (layout.cells_per_side << k) // 2, half + (layout.cells_per_side << k) // 2
-        inside_edge = np.minimum(np.minimum(row - lo, col - lo), np.minimum(hi - row - size, hi - col - size))
-        outside_gap = np.maximum(np.maximum(lo - row - size, row - hi), np.maximum(lo - col - size, col - hi))
-        fine = np.flatnonzero((size == 1 << k) & (inside_edge <= gap))
-        coarse = np.flatnonzero((size > 1 << k) & (outside_gap <= gap))
+        s = 1 << k
+        rf, cf = row[starts[k] : starts[k + 1]], col[starts[k] : starts[k + 1]]
+        inside_edge = np.minimum(np.minimum(rf - lo, cf - lo), np.minimum(hi - rf - s, hi - cf - s))
+        fine = starts[k] + np.flatnonzero(inside_edge <= gap)
+        rc, cc, sc = row[starts[k + 1] :], col[starts[k + 1] :], size[starts[k + 1] :]
+        outside_gap = np.maximum(np.maximum(lo - rc - sc, rc - hi), np.maximum(lo - cc - sc, cc - hi))
+        coarse = starts[k + 1] + np.flatnonzero(outside_gap <= gap)
         if fine.size == 0 or coarse.size == 0:
             continue
         if fine.size * coarse.size <= _ALL_PAIRS_MAX:  # a street's few hundred: every pair
-            i, j = np.repeat(fine, coarse.size), np.tile(coarse, fine.size)
-        else:  # Chebyshev distance of doubled centres: per axis |2 dc| <= 2 gap + s_fine + s_coarse
-            centre_f = np.column_stack((2 * row[fine] + size[fine], 2 * col[fine] + size[fine]))
-            centre_c = np.column_stack((2 * row[coarse] + size[coarse], 2 * col[coarse] + size[coarse]))
-            reach = 2 * gap + int(size[fine].max()) + int(size[coarse].max())
-            near = cKDTree(centre_f).sparse_distance_matrix(
-                cKDTree(centre_c), reach + 0.5, p=np.inf, output_type="ndarray"
+            bound = 2 * gap + size[fine][:, None] + size[coarse][None, :]
+            joined = (np.abs(centre_r[fine][:, None] - centre_r[coarse][None, :]) <= bound) & (
+                np.abs(centre_c[fine][:, None] - centre_c[coarse][None, :]) <= bound
             )
-            i, j = fine[near["i"]], coarse[near["j"]]
-        bound = 2 * gap + size[i] + size[j]
-        joined = (np.abs(2 * (row[i] - row[j]) + size[i] - size[j]) <= bound) & (
-            np.abs(2 * (col[i] - col[j]) + size[i] - size[j]) <= bound
+            fi, ci = np.nonzero(joined)
+            out_a.append(fine[fi])
+            out_b.append(coarse[ci])
+            continue
+        reach = 2 * gap + s + int(size[coarse].max())
+        near = cKDTree(np.column_stack((centre_r[fine], centre_c[fine]))).sparse_distance_matrix(
+            cKDTree(np.column_stack((centre_r[coarse], centre_c[coarse]))),
+            reach + 0.5,
+            p=np.inf,
+            output_type="ndarray",
         )
-        out_a.append(i[joined])
-        out_b.append(j[joined])
+        i, j = fine[near["i"]], coarse[near["j"]]
+        bound_ij = 2 * gap + size[i] + size[j]
+        ok = (np.abs(centre_r[i] - centre_r[j]) <= bound_ij) & (np.abs(centre_c[i] - centre_c[j]) <= bound_ij)
+        out_a.append(i[ok])
+        out_b.append(j[ok])
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
