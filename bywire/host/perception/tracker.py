@@ -442,6 +442,8 @@ class Tracker:
         self._moving = np.concatenate([self._moving, np.zeros(n, bool)])
 
     def _tracks(self, which: IntArray, detection: IntArray) -> list[Track]:
+        if which.size == 0:  # also before the first update, which has no time yet
+            return []
         assert self._t_s is not None
         x, box = self._x[which], self._box[which]
         covariance = self._p[which]  # a copy: the tracks do not share the filter's state

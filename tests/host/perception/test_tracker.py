@@ -164,6 +164,12 @@ def test_assign_forbids_pairs_outside_the_gate():
     assert list(zip(rows, cols, strict=True)) == [(0, 1)]
 
 
+def test_a_new_tracker_holds_no_tracks():
+    tracker = Tracker()
+    assert len(tracker) == 0 and tracker.all_tracks() == []
+    assert tracker.update([], 0.0) == [] and tracker.all_tracks() == []
+
+
 def test_time_must_increase():
     tracker = Tracker()
     tracker.update([Detection(1.0, 1.0)], 1.0)
