@@ -36,9 +36,11 @@ def test_perception_benchmark_reports_its_contract_rows() -> None:
     from bywire.cli import import_command_module
 
     doc = import_command_module("benchmarks.perception").run(1.0)
-    rows = ("grid_ms", "frame_ms", "baseline_ms") if "grid_ms" in doc else ()  # KITTI rows need the data
+    rows = ("grid_ms", "frame_ms", "baseline_ms", "frame_cpu_ms") if "grid_ms" in doc else ()  # KITTI data
     for row in (*rows, "cast_ms"):
         assert {"p50", "p99"} <= set(doc[row]) and 0 < doc[row]["p50"] <= doc[row]["p99"], row
+    if rows:
+        assert set(doc["parts_ms"]) == {"grid", "segmentation", "tracker", "lane_markers"}
     assert doc["cast"]["rays"] > 100_000
 
 
