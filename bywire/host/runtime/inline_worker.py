@@ -172,6 +172,11 @@ class _Watchdog:
                 continue  # it finished after all, or went on in the background
             if wall1 > wall0:
                 worker.hang_cpu_share = min(1.0, (cpu1 - cpu0) / (wall1 - wall0))
+            # a step that took its timeout's CPU and still wants the CPU is spinning, however little of
+            # it the machine gave the sample; a blocked one, and every thread it waits for, sleeps
+            worker.hang_runnable = time.process_time() - armed[3] >= armed[1] and bool(
+                runnable_tasks("self", exclude=(self.watch_native,))
+            )
             self.firing = True
             assert self.main_ident is not None
             signal.pthread_kill(self.main_ident, INTERRUPT_SIGNAL)
@@ -203,6 +208,7 @@ class InlineWorker(WorkerState):
     ) -> None:
         super().__init__(spec, generation, clock)
         self.hang_cpu_share: float | None = None
+        self.hang_runnable = False  # sampled with it: a thread of the step still runnable
         self.ctx = ModuleContext(spec, store, params, generation)
         self._timeout_s = timeout_s
         self._inject = inject

@@ -543,6 +543,8 @@ class Runtime:
             where = f"release at {busy_s - (self.start_s or 0.0):.3f} s not done after {late_s * 1e3:.0f} ms"
             if measured > SPIN_CPU_SHARE:
                 return "hang", f"{where}, spinning ({measured:.0%} of a CPU)", busy_s
+            if getattr(w, "hang_runnable", False):  # it had its timeout's CPU and wants more: starved
+                return "hang", f"{where}, spinning, runnable but kept off the CPU ({measured:.0%})", busy_s
             return "deadlock", f"{where}, blocked ({measured:.0%} of a CPU): deadlock or endless wait", busy_s
         if e.busy_mark is None or time.perf_counter() - e.busy_mark[0] < MIN_SPIN_SAMPLE_S:
             # Lockstep ticks can pass faster than the CPU share can be judged: sample once more,

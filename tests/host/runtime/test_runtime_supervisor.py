@@ -255,6 +255,20 @@ def test_a_runnable_worker_with_little_cpu_is_starved_or_spinning_never_deadlock
     assert ("kept off the CPU" in detail) == (state == "R")
 
 
+@pytest.mark.parametrize(("runnable", "cause"), [(True, "hang"), (False, "deadlock")])
+def test_a_lockstep_step_that_had_its_cpu_and_still_runs_is_spinning_however_little_the_sample_got(
+    runnable: bool, cause: str
+) -> None:
+    """The lockstep watchdog samples a late step's CPU share before interrupting it; on a loaded
+    machine a spinning step got 19 % of a CPU in that sample and was called a deadlock. A step that
+    took its timeout's CPU and is still runnable is spinning; only a sleeping one is stuck."""
+    rt, _store = make_runtime({})
+    worker = _LateWorker("R" if runnable else "S")
+    worker.hang_cpu_share, worker.hang_runnable = 0.19, runnable  # type: ignore[attr-defined]
+    got, detail, _ = rt._classify_hang(rt.entries["a"], worker, 0.2, 0.06)  # type: ignore[arg-type]
+    assert got == cause, detail
+
+
 class _StarvedWorker(_LateWorker):
     """A release begun at 0 s that is still runnable and barely gets the CPU (a loaded machine)."""
 
