@@ -7,9 +7,12 @@ Each revolution goes through section 4's three steps:
    cells, so a cell stays bound to its place in the world and keeps its evidence while inside);
 2. measure per cell (`CellMeasures`): point count n_i, number of distinct beams b_i and the elevation
    difference e_i = max z - min z (eq. 1);
-3. an inverse sensor model turns the measures into evidence, accumulated with decay (eq. 5) and read as
-   occupancy by the logistic of eq. 3. The grids of several sensors fuse by the maximum (eq. 4,
-   `fuse_max`).
+3. an inverse sensor model turns the measures, and the free space the beams crossed on their way, into
+   evidence, accumulated with decay (eq. 5) and read as occupancy by the logistic of eq. 3. The grids
+   of several sensors fuse by the maximum (eq. 4, `fuse_max`).
+
+The per-revolution loops are compiled kernels (`grid_kernels`, numba); this module holds the model and
+every number, and `warm_up()` loads the kernels before a real-time module's first frame.
 
 Layouts (`GridLayout`): nested square windows around the centre, level k with `cells_per_side` cells of
 `finest_cell_m * 2**k`, each window twice the size of the one inside it. One level is the paper's uniform
@@ -33,8 +36,13 @@ Deviations from the paper:
   updated"; for an updated cell it is a constant offset on its evidence).
 - The elevation threshold grows with the cell, 0.15 m + `max_grade` * cell size: a coarse cell on a
   graded road spans that much road height without any obstacle in it.
-- Free space comes from cells seen as ground; the cells a beam crossed before its return are not
-  marked free (no ray casting).
+- Free space (the inverse model's free part): besides cells seen as ground, the cells the beams crossed
+  before their returns, traced in 2-D through a polar image of `free_space_sectors` azimuth sectors
+  (`grid_kernels.sector_ranges`, `trace_free`), not beam by beam in 3-D. A sector is free up to its
+  nearest obstacle return if one of them lies low enough that its beam passed under anything of a
+  car's height on the way, else only to its farthest ground return; it stops where its neighbours saw
+  an obstacle; a cell is free when wholly short of that. Cells with an obstacle return this revolution
+  never are, and a crossed cell seen as ground takes the stronger of the two free evidences, not both.
 - Points more than `max_height_m` over the ground plane under the car (branches, signs the car
   passes under) and within `min_range_m` of the sensor (the car itself) are left out.
 - Beam ids count modulo 64 (a 64-bit mask per cell); a sensor with more beams undercounts b_i.
@@ -51,6 +59,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from bywire.host.perception import grid_kernels
 from bywire.host.perception.ego_pose import EgoPose
 from bywire.host.perception.scan import Scan
 
@@ -198,6 +207,27 @@ class EvidenceModel:
     min_range_m: float = 2.0
     # Over the ground plane under the car: what is higher, the car (1.5 m) passes under.
     max_height_m: float = 3.0
+    # The free part of the inverse sensor model: a cell the beams crossed before their returns adds
+    # this (0 turns the ray tracing off). Stronger than ground seen in the cell itself, so that what a
+    # car that drove on left behind (at most evidence_max) is below the obstacle level two revolutions
+    # after the beams pass there again: 3.0 - 2 * (1.0 + decay) < obstacle_evidence.
+    ray_free_evidence: float = -1.0
+    # Azimuth sectors of the free-space image: 0.35 deg, so that a sector's ray is no farther from the
+    # next than a cell's side at every window's outer edge (19.2 m: 0.12 m; 76.8 m: 0.47 m), and each
+    # sector holds a return of every beam (2000 azimuth steps a revolution).
+    free_space_sectors: int = 1024
+    # A cell is free when its farthest corner is this much nearer than its sector's nearest obstacle
+    # return (or farthest ground return): the range noise (2 cm, 1 sigma) ten times.
+    free_space_margin_m: float = 0.2
+    # ... and no farther than the nearest obstacle return of this many sectors on either side: a ray
+    # that grazes an object stops where the sector over it did. More (3 sectors, 1 deg) left a car that
+    # drove past a trail twice as long beside its last position, for no fewer missed cars (SIL,
+    # left_turn_oncoming replayed offline: 0.56 false objects per list against 0.23).
+    free_space_guard_sectors: int = 1
+    # Past the last ground return a sector is free up to its obstacle if a beam met the obstacle no
+    # higher than this over the road under the car: on its way down that beam passed under the roof of
+    # anything a car's height between (the rings of the ground returns lie 10 m apart at 50 m).
+    free_space_low_return_m: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.evidence_min <= 0.0 < self.evidence_max:
@@ -206,6 +236,16 @@ class EvidenceModel:
             raise ValueError("decay must be >= 0 and min_points >= 1")
         if not 0.5 < self.obstacle_probability < 1.0:
             raise ValueError(f"obstacle_probability {self.obstacle_probability} must be in (0.5, 1)")
+        if (
+            self.ray_free_evidence > 0.0
+            or self.free_space_sectors < 3
+            or self.free_space_margin_m < 0.0
+            or not 0 <= self.free_space_guard_sectors < self.free_space_sectors // 2
+        ):
+            raise ValueError(
+                "ray_free_evidence must be <= 0 (0: off), free_space_sectors >= 3, free_space_margin_m >= 0,"
+                " 0 <= free_space_guard_sectors < free_space_sectors / 2"
+            )
 
     @property
     def obstacle_evidence(self) -> float:
@@ -300,13 +340,18 @@ class OccupancyGrid:
         self.layout = layout if layout is not None else GridLayout.graded()
         self.model = model if model is not None else EvidenceModel()
         shape = self.layout.shape
+        n_cells = self.layout.n_cells
         self.evidence = np.zeros(shape, np.float32)
         self.z_min_m = np.full(shape, np.nan, np.float32)
         self.z_max_m = np.full(shape, np.nan, np.float32)
         self.updates = 0
         self._centre_steps: tuple[int, int] | None = None
-        self._scratch = np.empty(self.layout.n_cells, np.float32)
-        self._measure_scratch = _MeasureScratch(self.layout.n_cells)
+        self._measure_scratch = _MeasureScratch(n_cells)
+        # This revolution's class of each cell (1 ground, 2 obstacle; 0 not hit or too few points to
+        # tell), emptied after each update; the revolution that last freed each cell; freed cells.
+        self._cell_class = np.zeros(n_cells, np.uint8)
+        self._free_stamp = np.zeros(n_cells, np.int64)
+        self._freed = np.empty(n_cells, np.int32)
 
     @cached_property
     def _elevation_threshold_m(self) -> F32:
@@ -322,8 +367,9 @@ class OccupancyGrid:
         """Integrate one revolution taken at `pose` (the sensor's pose in the world; None: the origin)."""
         pose = pose if pose is not None else EgoPose()
         self.recentre(pose.x_m, pose.y_m)
-        measures = self.measure(scan, pose)
-        self._integrate(measures)
+        xyz, flat = self._project(scan, pose)
+        measures = _cell_measures(flat, xyz[:, 2], scan.beam, self._measure_scratch)
+        self._integrate(measures, scan, xyz, flat, pose)
         self.updates += 1
         return measures
 
@@ -338,58 +384,114 @@ class OccupancyGrid:
 
     def measure(self, scan: Scan, pose: EgoPose) -> CellMeasures:
         """Steps 1 and 2 of section 4 for one revolution, against the grid's current centre."""
-        keep, flat = self._project(scan, pose)
-        return _cell_measures(flat, scan.xyz_m[keep, 2], scan.beam[keep], self._measure_scratch)
+        xyz, flat = self._project(scan, pose)
+        return _cell_measures(flat, xyz[:, 2], scan.beam, self._measure_scratch)
 
     def obstacle_points(self, scan: Scan, pose: EgoPose | None = None) -> Bool:
         """Per point of the scan: in a cell whose elevation difference this revolution exceeds the
         threshold (eq. 1); the grid's evidence is not changed. Section 6 keeps lane markers off these.
         The rest is not all road: a flat roof's cells are level too, and a lone point tells nothing."""
-        keep, flat = self._project(scan, pose if pose is not None else EgoPose())
-        me = _cell_measures(flat, scan.xyz_m[keep, 2], scan.beam[keep], self._measure_scratch)
+        xyz, flat = self._project(scan, pose if pose is not None else EgoPose())
+        me = _cell_measures(flat, xyz[:, 2], scan.beam, self._measure_scratch)
         n2 = self.layout.cells_per_side**2
         step = (me.points >= self.model.min_points) & (
             me.elevation_m > self._elevation_threshold_m[me.cells // n2]
         )
+        keep = flat >= 0
         out = np.zeros(len(scan), bool)
-        out[keep] = step[np.searchsorted(me.cells, flat)]
+        out[keep] = step[np.searchsorted(me.cells, flat[keep])]
         return out
 
-    def _project(self, scan: Scan, pose: EgoPose) -> tuple[Bool, IntArray]:
-        """Which points the grid takes, and their cells."""
+    def _project(self, scan: Scan, pose: EgoPose) -> tuple[F32, I32]:
+        """The scan's points as float32 (N, 3), and each one's cell, -1 for those the grid leaves out."""
         m = self.model
-        x, y, z = scan.xyz_m[:, 0], scan.xyz_m[:, 1], scan.xyz_m[:, 2]
-        c, s = np.float32(math.cos(pose.yaw_rad)), np.float32(math.sin(pose.yaw_rad))
+        layout = self.layout
+        xyz = np.ascontiguousarray(scan.xyz_m, np.float32)
+        flat = np.empty(xyz.shape[0], np.int32)
         cx, cy = self.centre_m
-        inv = np.float32(1.0 / self.layout.finest_cell_m)
-        with np.errstate(invalid="ignore"):  # inf * 0 is NaN, which the comparisons below drop
-            qx = np.floor((c * x - s * y + np.float32(pose.x_m - cx)) * inv)
-            qy = np.floor((s * x + c * y + np.float32(pose.y_m - cy)) * inv)
-        h = self.layout.raster_side // 2
-        # NaN fails every comparison, so a non-finite point is dropped here too.
-        keep = (qx >= -h) & (qx < h) & (qy >= -h) & (qy < h)
-        keep &= z <= np.float32(m.max_height_m - scan.sensor_height_m)
-        keep &= x * x + y * y >= np.float32(m.min_range_m**2)
-        # intp: the index type ufunc.at uses, so the scatter converts nothing
-        return keep, self.layout.flat_index(qx[keep].astype(np.intp), qy[keep].astype(np.intp))
-
-    def _integrate(self, me: CellMeasures) -> None:
-        m = self.model
-        n2 = self.layout.cells_per_side**2
-        step = me.elevation_m > self._elevation_threshold_m[me.cells // n2]
-        delta = np.where(
-            step,
-            np.float32(m.occupied_evidence) + np.float32(m.multi_beam_evidence) * (me.beams >= 2),
-            np.float32(m.free_evidence),
+        grid_kernels.project(
+            xyz,
+            np.float32(math.cos(pose.yaw_rad)),
+            np.float32(math.sin(pose.yaw_rad)),
+            np.float32(pose.x_m - cx),
+            np.float32(pose.y_m - cy),
+            np.float32(1.0 / layout.finest_cell_m),
+            np.float32(m.max_height_m - scan.sensor_height_m),
+            np.float32(m.min_range_m**2),
+            layout.cells_per_side // 2,
+            layout.cells_per_side,
+            layout.levels,
+            flat,
         )
-        delta = np.where(me.points >= m.min_points, delta, np.float32(0.0))
-        ev = self.evidence.reshape(-1)
-        ev[me.cells] = np.clip(ev[me.cells] + delta, m.evidence_min, m.evidence_max)
-        self.z_min_m.reshape(-1)[me.cells] = me.z_min_m
-        self.z_max_m.reshape(-1)[me.cells] = me.z_max_m
-        # Eq. 5's decay, towards 0 from either side: o - clip(o, -eps, eps).
-        np.clip(ev, -m.decay, m.decay, out=self._scratch)
-        ev -= self._scratch
+        return xyz, flat
+
+    def _integrate(self, me: CellMeasures, scan: Scan, xyz: F32, flat: I32, pose: EgoPose) -> None:
+        m = self.model
+        grid_kernels.classify(
+            me.cells,
+            me.points,
+            me.z_min_m,
+            me.z_max_m,
+            self._elevation_threshold_m,
+            self.layout.cells_per_side**2,
+            m.min_points,
+            self._cell_class,
+        )
+        freed = self._freed[:0]
+        if m.ray_free_evidence < 0.0 and len(me):
+            freed = self._trace_free(scan, xyz, flat, pose)
+        grid_kernels.integrate(
+            self.evidence.reshape(-1),
+            self.z_min_m.reshape(-1),
+            self.z_max_m.reshape(-1),
+            me.cells,
+            me.beams,
+            me.z_min_m,
+            me.z_max_m,
+            freed,
+            self._cell_class,
+            np.float32(m.occupied_evidence),
+            np.float32(m.multi_beam_evidence),
+            np.float32(m.free_evidence),
+            np.float32(m.ray_free_evidence),
+            np.float32(m.evidence_min),
+            np.float32(m.evidence_max),
+            np.float32(m.decay),
+        )
+
+    def _trace_free(self, scan: Scan, xyz: F32, flat: I32, pose: EgoPose) -> I32:
+        """The cells the beams crossed this revolution before their returns (the free part of the inverse
+        sensor model), through an azimuth image of free range (`grid_kernels.sector_ranges`) whose sector
+        rays are walked through the grid; cells with an obstacle return this revolution are never free."""
+        m = self.model
+        layout = self.layout
+        free_m = grid_kernels.sector_ranges(
+            xyz,
+            flat,
+            self._cell_class,
+            math.cos(pose.yaw_rad),
+            math.sin(pose.yaw_rad),
+            m.free_space_low_return_m - scan.sensor_height_m,
+            m.free_space_sectors,
+            m.free_space_guard_sectors,
+        )
+        cx, cy = self.centre_m
+        k = grid_kernels.trace_free(
+            free_m,
+            m.min_range_m,
+            m.free_space_margin_m,
+            pose.x_m - cx,
+            pose.y_m - cy,
+            layout.finest_cell_m,
+            layout.cells_per_side // 2,
+            layout.cells_per_side,
+            layout.levels,
+            self._cell_class,
+            self._free_stamp,
+            self.updates + 1,
+            self._freed,
+        )
+        return self._freed[:k]
 
     def snapshot(self) -> GridSnapshot:
         return GridSnapshot(
@@ -423,6 +525,17 @@ class OccupancyGrid:
                 _fill_margin_from_coarse(a[k - 1], a[k], dx_steps * r, dy_steps * r)
 
 
+def warm_up() -> None:
+    """Compile the update's kernels (`grid_kernels`), or load them from numba's cache: the first update
+    in a process otherwise pays about a second for it (10-20 s on a machine that never compiled them),
+    which a real-time module pays in its start, not in its first frame."""
+    grid = OccupancyGrid(GridLayout(1.0, 8, 2))
+    xyz = np.array([[3.0, 0.1, -1.7], [3.1, 0.2, -1.0], [-3.2, 0.3, -1.7], [-3.1, 0.4, -1.69]], np.float32)
+    scan = Scan(xyz, np.zeros(4, np.float32), np.arange(4, dtype=np.int16))
+    grid.update(scan)
+    grid.obstacle_points(scan)
+
+
 def fuse_max(snapshots: Sequence[GridSnapshot]) -> GridSnapshot:
     """Eq. 4: the most pessimistic of several sensors' grids, cell by cell (same layout and centre)."""
     if not snapshots:
@@ -444,7 +557,7 @@ def fuse_max(snapshots: Sequence[GridSnapshot]) -> GridSnapshot:
 
 
 class _MeasureScratch:
-    """Per-cell accumulators the size of the grid, all empty between revolutions: a revolution resets
+    """Per-cell accumulators the size of the grid, all empty between revolutions: a revolution empties
     only the cells it touched, so the cost follows the points, not the grid."""
 
     def __init__(self, n_cells: int) -> None:
@@ -452,50 +565,31 @@ class _MeasureScratch:
         self.z_min_m = np.full(n_cells, np.inf, np.float32)
         self.z_max_m = np.full(n_cells, -np.inf, np.float32)
         self.beams = np.zeros(n_cells, np.uint64)
-        self.ones = np.ones(0, np.int32)
 
 
 def _cell_measures(
     flat: npt.NDArray[np.integer], z: F32, beam: npt.NDArray[np.int16], scratch: _MeasureScratch
 ) -> CellMeasures:
-    """n_i, b_i, min and max z per cell by unbuffered scatter (`ufunc.at`, whose loops for matching
-    dtypes are fast since numpy 1.25); distinct beams as one bit per beam, set once per run of
-    consecutive points of one cell and beam (a scan arrives beam by beam in azimuth order, so a run is
-    mostly several points). Any order of the points gives the same result."""
+    """n_i, b_i, min and max z per cell (points with flat < 0 left out): one scatter over the points and
+    one pass over the grid that lists the touched cells in order and empties them (`grid_kernels`);
+    distinct beams as one bit per beam. Any order of the points gives the same result."""
+    flat = np.asarray(flat, np.int32)
     n = flat.shape[0]
-    if n == 0:
-        empty_i, empty_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
-        return CellMeasures(empty_i, empty_i, empty_i, empty_f, empty_f)
-    if scratch.ones.shape[0] < n:
-        scratch.ones = np.ones(n, np.int32)
-    z = np.asarray(z, np.float32)
-    np.add.at(scratch.points, flat, scratch.ones[:n])
-    np.minimum.at(scratch.z_min_m, flat, z)
-    np.maximum.at(scratch.z_max_m, flat, z)
-    change = (flat[1:] != flat[:-1]) | (beam[1:] != beam[:-1])
-    starts = np.concatenate(([0], np.flatnonzero(change) + 1))
-    bits = np.left_shift(np.uint64(1), (beam[starts] & 63).astype(np.uint64))
-    np.bitwise_or.at(scratch.beams, flat[starts], bits)
-    cells = np.flatnonzero(scratch.points)
-    out = CellMeasures(
-        cells.astype(np.int32),
-        scratch.points[cells],
-        _popcount64(scratch.beams[cells]),
-        scratch.z_min_m[cells],
-        scratch.z_max_m[cells],
+    grid_kernels.scatter_measures(
+        flat,
+        np.ascontiguousarray(z, np.float32),
+        np.asarray(beam, np.int16),
+        scratch.points,
+        scratch.z_min_m,
+        scratch.z_max_m,
+        scratch.beams,
     )
-    scratch.points[cells] = 0
-    scratch.z_min_m[cells] = np.inf
-    scratch.z_max_m[cells] = -np.inf
-    scratch.beams[cells] = 0
-    return out
-
-
-def _popcount64(v: npt.NDArray[np.uint64]) -> I32:
-    count = getattr(np, "bitwise_count", None)  # numpy >= 2.0
-    if count is not None:
-        return np.asarray(count(v), np.int32)
-    return np.unpackbits(v.view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1).astype(np.int32)
+    cells, points, beams = np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32)
+    z_min, z_max = np.empty(n, np.float32), np.empty(n, np.float32)
+    k = grid_kernels.gather_measures(
+        scratch.points, scratch.z_min_m, scratch.z_max_m, scratch.beams, cells, points, beams, z_min, z_max
+    )
+    return CellMeasures(cells[:k], points[:k], beams[:k], z_min[:k], z_max[:k])
 
 
 def _shift_in_place(a: F32, sx: int, sy: int, fill: float) -> None:
@@ -533,13 +627,22 @@ def _pool_into(coarse: F32, fine: F32, pool: np.ufunc) -> None:
 
 
 def _fill_margin_from_coarse(fine: F32, coarse: F32, sx: int, sy: int) -> None:
-    """The rows and columns a shift by (sx, sy) fine cells left empty, from the coarse cells over them."""
+    """The rows and columns a shift by (sx, sy) fine cells left empty, from the coarse cells over them
+    (only those rows and columns are upsampled)."""
     n = fine.shape[0]
-    up = np.repeat(np.repeat(_centre_block(coarse), 2, axis=0), 2, axis=1)
+    block = _centre_block(coarse)
     if abs(sx) >= n or abs(sy) >= n:
-        fine[...] = up
+        fine[...] = _upsampled(block)
         return
-    rows = slice(n - sy, n) if sy > 0 else slice(0, -sy)
-    cols = slice(n - sx, n) if sx > 0 else slice(0, -sx)
-    fine[rows] = up[rows]
-    fine[:, cols] = up[:, cols]
+    r0, r1 = (n - sy, n) if sy > 0 else (0, -sy)
+    c0, c1 = (n - sx, n) if sx > 0 else (0, -sx)
+    if r1 > r0:
+        lo = r0 // 2
+        fine[r0:r1] = _upsampled(block[lo : (r1 + 1) // 2])[r0 - 2 * lo : r1 - 2 * lo]
+    if c1 > c0:
+        lo = c0 // 2
+        fine[:, c0:c1] = _upsampled(block[:, lo : (c1 + 1) // 2])[:, c0 - 2 * lo : c1 - 2 * lo]
+
+
+def _upsampled(a: F32) -> F32:
+    return np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)

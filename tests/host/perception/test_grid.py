@@ -254,7 +254,7 @@ def test_eq5_evidence_decays_by_epsilon_per_revolution_to_unknown_and_never_past
 @settings(max_examples=50, deadline=None)
 @given(st.lists(st.sampled_from(["occupied", "free", "none"]), min_size=1, max_size=40))
 def test_eq5_evidence_stays_within_its_bounds_and_follows_the_update_rule(steps: list[str]) -> None:
-    model = EvidenceModel()
+    model = EvidenceModel(ray_free_evidence=0.0)  # one cell: no free space traced towards it
     grid = OccupancyGrid(GridLayout.uniform(), model)
     scans = {
         "occupied": points_scan([(5.01, 1.01, -1.7), (5.02, 1.02, -1.0)], [1, 2]),
@@ -326,7 +326,8 @@ def test_shifting_keeps_the_evidence_at_its_place_in_the_world(layout: GridLayou
 
 
 def test_a_uniform_grid_moves_its_cells_exactly() -> None:
-    grid = OccupancyGrid(GridLayout.uniform(0.5, 10.0), EvidenceModel(decay=0.0))
+    # one cell seen, nothing traced free towards it: the only evidence in the grid
+    grid = OccupancyGrid(GridLayout.uniform(0.5, 10.0), EvidenceModel(decay=0.0, ray_free_evidence=0.0))
     grid.update(points_scan([(3.1, 2.1, -1.7), (3.2, 2.2, -1.0)]))
     (flat0,) = np.flatnonzero(grid.evidence)
     world0 = grid.layout.cell_centres_m(np.array([flat0]))[0][0] + grid.centre_m

@@ -40,7 +40,7 @@ from bywire.host.modules.urban_messages import (
     UrbanPose,
 )
 from bywire.host.perception.ego_pose import EgoPose
-from bywire.host.perception.grid import OccupancyGrid
+from bywire.host.perception.grid import OccupancyGrid, warm_up
 from bywire.host.perception.scan import Scan
 from bywire.host.perception.segmentation import ParticipantShape, SegmentationParams, segment
 from bywire.host.perception.tracker import Detection, Track, Tracker, TrackerParams
@@ -87,6 +87,9 @@ class LidarPerception(Module):
         self._objects: UrbanObjects | None = None
         self._status: PerceptionStatus | None = None
         self._cells: ObstacleCells | None = None
+
+    def start(self, ctx: ModuleContext) -> None:
+        warm_up()  # the grid's compiled kernels: about a second, before the first release
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
