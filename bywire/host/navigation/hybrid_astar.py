@@ -42,6 +42,7 @@ from . import reeds_shepp
 from .cspace import CSpace
 from .heuristics import HeuristicField
 from .primitives import MotionPrimitives, build_primitives
+from .reeds_shepp_kernel import path_collides
 
 __all__ = ["Plan", "PlannerParams", "plan", "run_to_end", "search"]
 
@@ -365,9 +366,14 @@ def _shot(
 ) -> reeds_shepp.RsPath | None:
     """The shortest of the `candidates` shortest Reeds-Shepp paths to the goal that is free."""
     paths = reeds_shepp.shortest_paths(*reeds_shepp.normalised(pose, goal, radius_m), candidates)
+    grid = cspace.grid
+    ox, oy = grid.origin_xy_m
     for path in paths:
-        poses, _ = reeds_shepp.sample(pose, path, radius_m, step_m)
-        if not cspace.collides(poses[:, 0], poses[:, 1], poses[:, 2]).any():
+        # `sample` then `cspace.collides`, compiled, stopping at the first pose that collides
+        curvature, length_m = reeds_shepp.segment_arrays(path, radius_m)
+        x, y, th = pose
+        res = grid.resolution_m
+        if not path_collides(x, y, th, curvature, length_m, step_m, cspace.blocked, ox, oy, res):
             return path
     return None
 

@@ -26,8 +26,8 @@ import numpy as np
 from . import reeds_shepp_kernel as _kernel
 
 __all__ = [
-    "RsPath", "Segment", "all_paths", "normalised", "sample", "shortest_length", "shortest_normalised_length",
-    "shortest_path", "shortest_paths",
+    "RsPath", "Segment", "all_paths", "normalised", "sample", "segment_arrays", "shortest_length",
+    "shortest_normalised_length", "shortest_path", "shortest_paths", "warm_up",
 ]  # fmt: skip
 
 _ZERO = 10.0 * np.finfo(float).eps
@@ -318,6 +318,12 @@ def shortest_length(
     return shortest_normalised_length(*normalised(start, goal, radius_m)) * radius_m
 
 
+def segment_arrays(path: RsPath, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(curvature in 1/m, signed length in m) of each segment, as `sample` drives them."""
+    curvature = np.array([_CURVATURE[seg.steer] / radius_m for seg in path.segments], dtype=np.float64)
+    return curvature, np.array([seg.length * radius_m for seg in path.segments], dtype=np.float64)
+
+
 def sample(
     start: tuple[float, float, float], path: RsPath, radius_m: float, step_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -346,3 +352,14 @@ def sample(
     if signs.size > 1:
         signs[0] = signs[1]
     return np.vstack(parts), signs
+
+
+def warm_up() -> None:
+    """Compile the words and the shot's collision walk (`reeds_shepp_kernel`), or load them from numba's
+    cache: a process's first plan otherwise pays for it (about a second; several on a machine that
+    never compiled them). The planner's worker calls it before its first request."""
+    shortest_normalised_length(1.0, 1.0, 1.0)
+    _solutions(1.0, 1.0, 1.0)
+    blocked = np.zeros((1, 1, 1), dtype=bool)
+    curvature, length_m = segment_arrays(RsPath((Segment("L", 0.1),)), 1.0)
+    _kernel.path_collides(0.0, 0.0, 0.0, curvature, length_m, 0.5, blocked, 0.0, 0.0, 1.0)

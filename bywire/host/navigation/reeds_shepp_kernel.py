@@ -187,3 +187,55 @@ def shortest_length(
     out = np.empty((1, 6))
     n = solutions(x, y, phi, solver, backwards, twice, extra, mirrors, out, True)
     return out[0, 0] if n else math.inf
+
+
+@njit(cache=True, nogil=True)
+def _blocked_at(x: float, y: float, th: float, blocked: np.ndarray, ox: float, oy: float, res: float) -> bool:
+    """`CSpace.collides` for one pose: its heading bin's grown footprint at its cell, or off the map."""
+    n, rows, cols = blocked.shape
+    col = math.floor((x - ox) / res)
+    row = math.floor((y - oy) / res)
+    if row < 0 or row >= rows or col < 0 or col >= cols:
+        return True
+    k = round(th * (n / (2.0 * math.pi))) % n
+    return bool(blocked[k, row, col])
+
+
+@njit(cache=True, nogil=True)
+def path_collides(
+    x: float,
+    y: float,
+    th: float,
+    curvature: np.ndarray,
+    length_m: np.ndarray,
+    step_m: float,
+    blocked: np.ndarray,
+    ox: float,
+    oy: float,
+    res: float,
+) -> bool:
+    """Whether any pose `reeds_shepp.sample` gives along the segments (curvature 1/m, signed length
+    m) from (x, y, th) collides in the configuration space `blocked` (heading bins x rows x cols, the
+    grid's origin and cell size): the same poses, stopping at the first that collides."""
+    if _blocked_at(x, y, th, blocked, ox, oy, res):
+        return True
+    for i in range(curvature.shape[0]):
+        seg = length_m[i]
+        if abs(seg) < 1e-12:
+            continue
+        n = max(1, math.ceil(abs(seg) / step_m))
+        k = curvature[i]
+        c, s = math.cos(th), math.sin(th)
+        px, py, pth = x, y, th
+        for j in range(1, n + 1):
+            ds = j * (seg / n)
+            if k == 0.0:
+                px, py, pth = x + ds * c, y + ds * s, th
+            else:
+                pth = th + k * ds
+                px = x + (math.sin(pth) - s) / k
+                py = y - (math.cos(pth) - c) / k
+            if _blocked_at(px, py, pth, blocked, ox, oy, res):
+                return True
+        x, y, th = px, py, pth
+    return False

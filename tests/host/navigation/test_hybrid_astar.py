@@ -114,3 +114,30 @@ def test_no_path_is_said_plainly() -> None:
         plan(cs, (1.5, 5.0, 0.0), (3.0, 5.0, 0.0), SMALL, heuristic="voronoi")
     with pytest.raises(ValueError, match="goal"):
         plan(cs, (1.5, 5.0, 0.0), (math.nan, 5.0, 0.0), SMALL)
+
+
+def test_the_compiled_shot_check_agrees_with_sampling_and_the_cspace(lot) -> None:  # type: ignore[no-untyped-def]
+    """`reeds_shepp_kernel.path_collides` (the shot's check, compiled) against `reeds_shepp.sample` then
+    `CSpace.collides` on the Autoware lot: the same verdict for every Reeds-Shepp candidate between
+    random poses, free and blocked both among them, and at the grid's edge."""
+    from bywire.host.navigation import reeds_shepp as rs
+    from bywire.host.navigation.reeds_shepp_kernel import path_collides
+
+    problem, cs = lot
+    grid = cs.grid
+    ox, oy = grid.origin_xy_m
+    rng = np.random.default_rng(7)
+    verdicts = []
+    while len(verdicts) < 600:
+        a = (rng.uniform(-1, 31), rng.uniform(-1, 31), rng.uniform(-math.pi, math.pi))
+        if cs.collides(np.array([a[0]]), np.array([a[1]]), np.array([a[2]]))[0] and rng.random() < 0.9:
+            continue  # mostly from free poses: free paths and blocked ones both
+        b = (a[0] + rng.uniform(-5, 5), a[1] + rng.uniform(-5, 5), rng.uniform(-math.pi, math.pi))
+        for path in rs.all_paths(*rs.normalised(a, b, problem.turn_radius_m)):
+            poses, _ = rs.sample(a, path, problem.turn_radius_m, 0.1)
+            want = bool(cs.collides(poses[:, 0], poses[:, 1], poses[:, 2]).any())
+            curvature, length_m = rs.segment_arrays(path, problem.turn_radius_m)
+            got = path_collides(*a, curvature, length_m, 0.1, cs.blocked, ox, oy, grid.resolution_m)
+            assert got == want, (a, b, path)
+            verdicts.append(want)
+    assert 20 <= verdicts.count(False) and 20 <= verdicts.count(True)
