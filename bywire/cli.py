@@ -95,6 +95,11 @@ COMMANDS: tuple[Command, ...] = (
     Command("bench", "benchmarks"),
     Command("bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "benchmarks.ecu"),
     Command(
+        "bench sil",
+        "whole scenarios in SIL (demo, GCDC heat, DARPA sample mission): real-time factor vs. the FMU alone",
+        "benchmarks.sil",
+    ),
+    Command(
         "bench roadnet",
         "RNDF/MDF parse, graph and mission route on NQE and VAIL (seed 000 section 8)",
         "benchmarks.roadnet",

@@ -99,3 +99,15 @@ def test_the_partitioned_load_stays_off_the_ecus_cpu(tmp_path: Path) -> None:
         assert all(os.sched_getaffinity(p.pid) == set(part.housekeeping) for p in procs)
     floor = bench.bare_loop_lateness_ms(0.2, cpu=part.ecu_cpu)
     assert {"p50", "p99", "p999", "max"} <= set(floor)
+
+
+def test_sil_benchmark_reports_a_factor_per_scenario_beside_the_fmu_alone() -> None:
+    from bywire.cli import import_command_module
+
+    bench = import_command_module("benchmarks.sil")
+    doc = bench.bench(["demo"], repeats=2, duration_s=1.5)
+    row = doc["sil_factor"]["demo"]
+    assert row["n"] == 2 and len(row["runs"]) == 2 and row["simulated_s"] == 1.5
+    assert 0 < row["min"] <= row["median"] <= row["p99"] <= row["max"]
+    assert row["per_second"]["min"] > 0 and row["target"] == bench.TARGETS["demo"]
+    assert doc["baseline_fmu_alone_factor"]["before"] > 0 and doc["baseline_fmu_alone_factor"]["after"] > 0
