@@ -7,11 +7,16 @@ tell-apart reads real CPU time, over the real wall time the lockstep wait gives 
 
 from __future__ import annotations
 
+import collections
+import math
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from bywire.clock import SimClock
 from bywire.host.runtime.inline_worker import background
@@ -23,7 +28,7 @@ from bywire.host.runtime.module import (
     dependants,
     dependency_order,
 )
-from bywire.host.runtime.runtime import Runtime
+from bywire.host.runtime.runtime import Runtime, exec_stats_ms
 from bywire.host.runtime.store import ObjectStore, StoreError
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
 from bywire.host.runtime.worker import ReleaseStats
@@ -480,3 +485,35 @@ def test_on_wall_time_a_late_module_reads_its_release_and_holds_back_only_its_co
     for release_s, input_t_s in consumer_log:
         before = [s for s in slow_releases if s <= release_s]
         assert before and input_t_s == before[-1], (release_s, input_t_s, slow_releases)
+
+
+class _InterruptedOnce(collections.deque):  # type: ignore[type-arg]
+    """A history whose first read of its window is cut short, as a worker thread's append would."""
+
+    interrupted = False
+
+    def __reversed__(self) -> Iterator[float]:
+        if not self.interrupted:
+            self.interrupted = True
+            raise RuntimeError("deque mutated during iteration")
+        return super().__reversed__()
+
+    def copy(self) -> collections.deque[float]:  # type: ignore[override]
+        return collections.deque(self)
+
+
+@given(st.lists(st.floats(0.0, 1.0), max_size=300), st.one_of(st.none(), st.integers(1, 150)))
+def test_exec_statistics_of_the_window_are_those_of_a_snapshot(
+    samples: list[float], window: int | None
+) -> None:
+    history = collections.deque(samples, maxlen=1000)
+    chosen = samples if window is None else samples[::-1][:window]
+    expected = (0.0, 0.0, 0.0)
+    if chosen:
+        ordered = sorted(chosen)
+        n = len(ordered)
+        p50 = ordered[(n - 1) // 2] if n % 2 else 0.5 * (ordered[n // 2 - 1] + ordered[n // 2])
+        p99 = ordered[min(n - 1, math.ceil(0.99 * n) - 1)]
+        expected = (round(p50 * 1e3, 4), round(p99 * 1e3, 4), round(ordered[-1] * 1e3, 4))
+    assert exec_stats_ms(history, window) == expected
+    assert exec_stats_ms(_InterruptedOnce(samples), window) == expected
