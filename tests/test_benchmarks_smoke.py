@@ -110,4 +110,5 @@ def test_sil_benchmark_reports_a_factor_per_scenario_beside_the_fmu_alone() -> N
     assert row["n"] == 2 and len(row["runs"]) == 2 and row["simulated_s"] == 1.5
     assert 0 < row["min"] <= row["median"] <= row["p99"] <= row["max"]
     assert row["per_second"]["min"] > 0 and row["target"] == bench.TARGETS["demo"]
+    assert row["cpu_factor"]["median"] > 0 and len(row["cpu_factor"]["runs"]) == 2
     assert doc["baseline_fmu_alone_factor"]["before"] > 0 and doc["baseline_fmu_alone_factor"]["after"] > 0
