@@ -41,10 +41,13 @@ class ModuleFaultInjector:
         # Looked up once: the host asks every simulated millisecond.
         self._stop_faults = scenario.faults_of("host_freeze", "host_kill") if in_process else ()
         self._mute_faults = scenario.faults_of("heartbeat_mute")
+        self._kills = tuple((i, f) for i, f in enumerate(self.faults) if f.kind == "module_kill")
         self._fired: set[int] = set()
         self._lock = threading.Lock()
 
     def host_stopped(self, now_s: float) -> bool:
+        if not self._stop_faults:
+            return False  # most scenarios: no generator every simulated millisecond
         t = now_s - self.t0_s
         return any(f.active(t) for f in self._stop_faults)
 
@@ -78,9 +81,11 @@ class ModuleFaultInjector:
                 lock.acquire()  # never returns: the thread holds the lock it waits for
 
     def tick(self, runtime: Any, now_s: float) -> None:
+        if not self._kills:
+            return  # called every simulated millisecond; only a kill fault acts here
         t = now_s - self.t0_s
-        for i, f in enumerate(self.faults):
-            if f.kind != "module_kill" or t < f.at_s or i in self._fired:
+        for i, f in self._kills:
+            if t < f.at_s or i in self._fired:
                 continue
             entry = runtime.entries.get(f.module)
             pid = getattr(entry.worker, "pid", None) if entry is not None else None
