@@ -174,9 +174,7 @@ class _Watchdog:
                 worker.hang_cpu_share = min(1.0, (cpu1 - cpu0) / (wall1 - wall0))
             # a step that took its timeout's CPU and still wants the CPU is spinning, however little of
             # it the machine gave the sample; a blocked one, and every thread it waits for, sleeps
-            worker.hang_runnable = time.process_time() - armed[3] >= armed[1] and bool(
-                runnable_tasks("self", exclude=(self.watch_native,))
-            )
+            worker.hang_runnable = _had_its_cpu(armed[3], armed[1]) and self._runnable()
             self.firing = True
             assert self.main_ident is not None
             signal.pthread_kill(self.main_ident, INTERRUPT_SIGNAL)
@@ -186,10 +184,11 @@ class _Watchdog:
         was kept off the CPU (another process, VM steal; then the GIL, which the starved step held),
         it is not stuck. A spinning step gets there on its CPU time; a blocked one sleeps, and so do
         all the threads it could be waiting for (see the module docstring)."""
-        if time.process_time() - step_cpu0_s >= timeout_s:
-            return False
-        runnable = runnable_tasks("self", exclude=() if self.watch_native is None else (self.watch_native,))
-        return bool(runnable)
+        return not _had_its_cpu(step_cpu0_s, timeout_s) and self._runnable()
+
+    def _runnable(self) -> bool:
+        """A thread of this process other than the watchdog is runnable (the step or a helper of it)."""
+        return bool(runnable_tasks("self", exclude=() if self.watch_native is None else (self.watch_native,)))
 
 
 class InlineWorker(WorkerState):
@@ -304,6 +303,11 @@ class InlineWorker(WorkerState):
         if self._module is not None and self.failure is None and self.busy_since_s is None:
             with contextlib.suppress(BaseException):  # a failing close of a retired instance changes nothing
                 self._guarded(self._module.close)
+
+
+def _had_its_cpu(step_cpu0_s: float, timeout_s: float) -> bool:
+    """The process has had the timeout's worth of CPU since the step began (`time.process_time`)."""
+    return time.process_time() - step_cpu0_s >= timeout_s
 
 
 def _voluntary_switches() -> int:

@@ -85,20 +85,23 @@ def exec_stats_ms(exec_s: Reversible[float], window: int | None) -> tuple[float,
     is copied: the history holds a thousand samples, the health topic looks at a hundred, ten
     times a second for every module.
     """
+
     # A worker's thread appends to the history while the health topic reads it: iterating the deque
     # itself raised "deque mutated during iteration" and ended the host process in a HIL run. Its
     # copy() is one C call under the GIL, so the window is taken from a snapshot when the whole
     # history is asked for, or when reading the window alone was cut short by an append; the window
     # read alone (a tenth of the history) is C too and so mostly not interrupted, and a copy of the
     # whole history ten times a second for every module was the health topic's main cost.
+    def snapshot() -> Reversible[float]:
+        return exec_s.copy() if isinstance(exec_s, collections.deque) else exec_s
+
     if window is None:
-        samples = list(exec_s.copy() if isinstance(exec_s, collections.deque) else exec_s)
+        samples = list(snapshot())
     else:
         try:
             samples = list(itertools.islice(reversed(exec_s), window))
         except RuntimeError:  # mutated during the read: the same window of a snapshot
-            snapshot = exec_s.copy() if isinstance(exec_s, collections.deque) else exec_s
-            samples = list(itertools.islice(reversed(snapshot), window))
+            samples = list(itertools.islice(reversed(snapshot()), window))
     if not samples:
         return 0.0, 0.0, 0.0
     samples.sort()
