@@ -366,13 +366,11 @@ def _shot(
 ) -> reeds_shepp.RsPath | None:
     """The shortest of the `candidates` shortest Reeds-Shepp paths to the goal that is free."""
     paths = reeds_shepp.shortest_paths(*reeds_shepp.normalised(pose, goal, radius_m), candidates)
-    grid = cspace.grid
-    ox, oy = grid.origin_xy_m
+    (ox, oy), res = cspace.grid.origin_xy_m, cspace.grid.resolution_m
+    x, y, th = pose
     for path in paths:
         # `sample` then `cspace.collides`, compiled, stopping at the first pose that collides
         curvature, length_m = reeds_shepp.segment_arrays(path, radius_m)
-        x, y, th = pose
-        res = grid.resolution_m
         if not path_collides(x, y, th, curvature, length_m, step_m, cspace.blocked, ox, oy, res):
             return path
     return None

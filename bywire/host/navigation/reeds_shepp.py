@@ -332,13 +332,12 @@ def sample(
     x, y, th = start
     parts = [np.array([[x, y, th]])]
     sign_parts = [np.array([1.0])]
-    for seg in path.segments:
-        length_m = seg.length * radius_m
+    curvatures, lengths = segment_arrays(path, radius_m)
+    for k, length_m in zip(curvatures.tolist(), lengths.tolist(), strict=True):
         if abs(length_m) < 1e-12:
             continue
         n = max(1, math.ceil(abs(length_m) / step_m))
         ds = np.arange(1, n + 1) * (length_m / n)
-        k = _CURVATURE[seg.steer] / radius_m
         if k == 0.0:
             px, py, pth = x + ds * math.cos(th), y + ds * math.sin(th), np.full(n, th)
         else:
