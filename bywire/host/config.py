@@ -182,6 +182,10 @@ def _module(r: _Reader) -> ModuleConfig:
     params = r.raw("params", {}) or {}
     if not isinstance(params, dict):
         raise r.error("params", f"expected a mapping, got {params!r}")
+    try:
+        kind.check_params(params)
+    except ValueError as exc:
+        raise r.error("params", str(exc)) from exc
     r.finish()
     try:
         spec = ModuleSpec(

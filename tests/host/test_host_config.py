@@ -81,6 +81,78 @@ def test_a_variant_overrides_modules_by_name(tmp_path: Path) -> None:
         ({"modules": [{"name": "a b", "kind": "odometry"}]}, "modules[0].name", "letters"),
         ({"modules": []}, "modules", "non-empty"),
         ({"modulez": 1, "modules": [{"name": "a", "kind": "odometry"}]}, "modulez", "unknown key"),
+        # A module's params are read when the file loads, as the module will read them at its start
+        # (where a refusal would restart it until its policy stopped the host).
+        (
+            {"modules": [{"name": "a", "kind": "odometry", "params": {"gain": 1}}]},
+            "modules[0].params",
+            "odometry: unknown params ['gain'] (known: none)",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "longitudinal", "params": {"velocity_gain_per_s": "fast"}}]},
+            "modules[0].params",
+            "longitudinal: params.velocity_gain_per_s must be a number",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "longitudinal", "params": {"velocity_gain": 0.5}}]},
+            "modules[0].params",
+            "longitudinal: unknown params ['velocity_gain'] (known: accel_max_mps2",
+        ),
+        (
+            {"modules": [{"name": "a", "kind": "longitudinal", "params": {"velocity_gain_per_s": -1}}]},
+            "modules[0].params",
+            "velocity_gain_per_s",
+        ),
+        (
+            {"modules": [{"name": "p", "kind": "platoon_control", "params": {"headway_ss": 0.8}}]},
+            "modules[0].params",
+            "platoon_control: unknown params ['headway_ss']",
+        ),
+        (
+            {"modules": [{"name": "p", "kind": "platoon_control", "params": {"max_leaders": 2.5}}]},
+            "modules[0].params",
+            "max_leaders must be an integer in 1..64",
+        ),
+        (
+            {"modules": [{"name": "t", "kind": "ecu_tx", "params": {"request_max_age_ms": 5}}]},
+            "modules[0].params",
+            "request_max_age_ms must be a number in 20..1000",
+        ),
+        (
+            {"modules": [{"name": "w", "kind": "world_model", "params": {"blacklist": ["x"]}}]},
+            "modules[0].params",
+            "blacklist must be a list of station ids",
+        ),
+        (
+            {"modules": [{"name": "r", "kind": "v2v_rx", "params": {"black_list": [3]}}]},
+            "modules[0].params",
+            "v2v_rx: unknown params ['black_list']",
+        ),
+        (
+            {"modules": [{"name": "t", "kind": "v2v_tx", "params": {"profile": "fast"}}]},
+            "modules[0].params",
+            "profile must be one of etsi, gcdc",
+        ),
+        (
+            {"modules": [{"name": "l", "kind": "lidar_perception", "params": {"join_distanse_m": 0.4}}]},
+            "modules[0].params",
+            "lidar_perception: unknown params ['join_distanse_m']",
+        ),
+        (
+            {"modules": [{"name": "l", "kind": "lane_offset", "params": {"min_correction_m": -1}}]},
+            "modules[0].params",
+            "min_correction_m must be a number in 0..10",
+        ),
+        (
+            {"modules": [{"name": "c", "kind": "urban_control", "params": {"lateral_k0": 1.0}}]},
+            "modules[0].params",
+            "urban_control: unknown params ['lateral_k0'] (known: accel_max_mps2",
+        ),
+        (
+            {"modules": [{"name": "c", "kind": "urban_control", "params": {"lateral_k0_per_m2": 0.0}}]},
+            "modules[0].params",
+            "k0_per_m2",
+        ),
     ],
 )
 def test_bad_configurations_name_the_field(change: dict, where: str, what: str) -> None:
@@ -140,6 +212,9 @@ def test_a_scenarios_host_params_set_module_parameters_over_the_configuration(tm
     assert scenario_host_config(load_scenario(str(path))).module("platoon").params["headway_s"] == 0.9
     path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platon: {headway_s: 0.9}}}\n")
     with pytest.raises(HostConfigError, match=r"s.yaml: host.params.platon: no module 'platon' in gcdc.yaml"):
+        scenario_host_config(load_scenario(str(path)))
+    path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platoon: {headway_ss: 0.9}}}\n")
+    with pytest.raises(HostConfigError, match=r"params: platoon_control: unknown params \['headway_ss'\]"):
         scenario_host_config(load_scenario(str(path)))
     path.write_text("name: s\nduration_s: 1\nhost: {config: gcdc, params: {platoon: 0.9}}\n")
     with pytest.raises(ScenarioError, match=r"host.params: expected module name -> mapping"):

@@ -28,6 +28,7 @@ from bywire.host.modules import gcdc_messages as g
 from bywire.host.modules import messages as m
 from bywire.host.modules import perception_messages as pm
 from bywire.host.modules import urban_messages as u
+from bywire.host.modules.module_params import integer, number, refuse_unknown, station_ids
 from bywire.host.runtime.module import Module
 from bywire.host.runtime.topics import SAFETY_LIMIT, STOP_REQUEST
 from bywire.host.trace import TraceWriter
@@ -154,6 +155,16 @@ class ModuleKind:
     doc: str = ""
     always_release: bool = False  # see ModuleSpec.always_release
     sampled: tuple[str, ...] = ()  # see ModuleSpec.sampled
+    # Reads the params a configuration gives, without the host's resources, as the builder will: a
+    # ValueError names the key. None: the kind takes no params.
+    check: Callable[[Mapping[str, Any]], Any] | None = None
+
+    def check_params(self, params: Mapping[str, Any]) -> None:
+        """Refuse, when the configuration loads, the params the module would refuse at its start."""
+        if self.check is not None:
+            self.check(params)
+        else:
+            refuse_unknown(self.kind, params, ())
 
 
 def _mission(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -170,22 +181,18 @@ def _ecu_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
     return EcuRx(res.link)
 
 
+def _ecu_tx_max_age_ms(params: Mapping[str, Any]) -> float:
+    from bywire.host.modules.io.ecu_link import REQUEST_MAX_AGE_S
+
+    refuse_unknown("ecu_tx", params, ("request_max_age_ms",))
+    return number("ecu_tx", params, "request_max_age_ms", REQUEST_MAX_AGE_S * 1e3, 20.0, 1000.0)
+
+
 def _ecu_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.io.ecu_link import REQUEST_MAX_AGE_S, EcuTx
+    from bywire.host.modules.io.ecu_link import EcuTx
 
     assert res is not None and res.link is not None
-    p = dict(params)
-    max_age_ms = p.pop("request_max_age_ms", REQUEST_MAX_AGE_S * 1e3)
-    if p:
-        raise ValueError(f"ecu_tx: unknown params {sorted(p)} (known: request_max_age_ms)")
-    if (
-        isinstance(max_age_ms, bool)
-        or not isinstance(max_age_ms, int | float)
-        or not 20 <= max_age_ms <= 1000
-    ):
-        raise ValueError(
-            f"ecu_tx: params.request_max_age_ms must be a number in 20..1000 ms, got {max_age_ms!r}"
-        )
+    max_age_ms = _ecu_tx_max_age_ms(params)
     return EcuTx(
         res.link,
         res.trace,
@@ -232,10 +239,16 @@ def _vehicle_sensors(params: Mapping[str, Any], res: HostResources | None) -> Mo
     return VehicleSensorsIo(res.vehicle_bus if res is not None else None)
 
 
-def _station_id(params: Mapping[str, Any], res: HostResources | None) -> int:
+def _station_id(kind: str, params: Mapping[str, Any], res: HostResources | None) -> int:
     if "station_id" in params:
-        return int(params["station_id"])
+        return integer(kind, params, "station_id", 0, 0, 2**32 - 1)
     return res.inputs.station_id if res is not None else 1
+
+
+def _v2v_rx_blacklist(params: Mapping[str, Any]) -> frozenset[int]:
+    refuse_unknown("v2v_rx", params, ("station_id", "blacklist"))
+    _station_id("v2v_rx", params, None)
+    return station_ids("v2v_rx", params, "blacklist")
 
 
 def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -243,45 +256,41 @@ def _v2v_rx(params: Mapping[str, Any], res: HostResources | None) -> Module:
     from bywire.protocol.v2x.receiver import ReceiverParams
 
     assert res is not None
-    blacklist = frozenset(int(s) for s in params.get("blacklist", ()))
-    return V2vRxIo(res.v2x, res.unix_time_fn(), _station_id(params, res), ReceiverParams(blacklist=blacklist))
+    receiver = ReceiverParams(blacklist=_v2v_rx_blacklist(params))
+    return V2vRxIo(res.v2x, res.unix_time_fn(), _station_id("v2v_rx", params, res), receiver)
 
 
-def _v2v_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.io.v2v import PASSAT_REAR_AXLE_M, TX_PROFILES, V2vTxIo
+def _v2v_tx_settings(params: Mapping[str, Any]) -> dict[str, Any]:
+    """The V2V sender's keyword arguments from its params (ValueError naming the key)."""
+    from bywire.host.modules.io.v2v import PASSAT_REAR_AXLE_M, TX_PROFILES
 
-    assert res is not None
-    p = dict(params)
-    p.pop("station_id", None)
-    profile = p.pop("profile", "etsi")
-    iclcm = p.pop("iclcm", None)
-    platoon_id = p.pop("platoon_id", 0)
-    rear_axle_m = p.pop("rear_axle_m", PASSAT_REAR_AXLE_M)
-    if p:
-        raise ValueError(
-            f"v2v_tx: unknown params {sorted(p)} (known: station_id, profile, iclcm, platoon_id, rear_axle_m)"
-        )
+    kind = "v2v_tx"
+    refuse_unknown(kind, params, ("station_id", "profile", "iclcm", "platoon_id", "rear_axle_m"))
+    _station_id(kind, params, None)
+    profile = params.get("profile", "etsi")
+    iclcm = params.get("iclcm")
     if profile not in TX_PROFILES:
         raise ValueError(f"v2v_tx: params.profile must be one of {', '.join(TX_PROFILES)}, got {profile!r}")
     if iclcm is not None and not isinstance(iclcm, bool):
         raise ValueError(f"v2v_tx: params.iclcm must be true or false, got {iclcm!r}")
-    if isinstance(platoon_id, bool) or not isinstance(platoon_id, int) or not 0 <= platoon_id <= 255:
-        raise ValueError(f"v2v_tx: params.platoon_id must be an integer in 0..255, got {platoon_id!r}")
-    if (
-        isinstance(rear_axle_m, bool)
-        or not isinstance(rear_axle_m, int | float)
-        or not 0 <= rear_axle_m <= 40.95
-    ):
-        raise ValueError(f"v2v_tx: params.rear_axle_m must be a number in 0..40.95 m, got {rear_axle_m!r}")
+    return {
+        "profile": profile,
+        "iclcm": iclcm,
+        "platoon_id": integer(kind, params, "platoon_id", 0, 0, 255),
+        "rear_axle_m": number(kind, params, "rear_axle_m", PASSAT_REAR_AXLE_M, 0.0, 40.95),
+    }
+
+
+def _v2v_tx(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.io.v2v import V2vTxIo
+
+    assert res is not None
     return V2vTxIo(
         res.v2x,
         res.unix_time_fn(),
         res.local_frame(),
-        _station_id(params, res),
-        profile=profile,
-        iclcm=iclcm,
-        platoon_id=platoon_id,
-        rear_axle_m=float(rear_axle_m),
+        _station_id("v2v_tx", params, res),
+        **_v2v_tx_settings(params),
     )
 
 
@@ -292,24 +301,35 @@ def _pose(params: Mapping[str, Any], res: HostResources | None) -> Module:
     return PoseModule(res.local_frame())
 
 
-def _world_model(params: Mapping[str, Any], res: HostResources | None) -> Module:
-    from bywire.host.modules.estimation.world_model import WorldModel
+def _world_model_settings(params: Mapping[str, Any]) -> tuple[Any, int, str | None]:
+    """(fusion configuration, max leads, lane map file) from the world model's params."""
     from bywire.host.world.radar_fusion import FusionConfig
 
-    assert res is not None
-    blacklist = frozenset(int(s) for s in params.get("blacklist", ()))
+    kind = "world_model"
+    keys = ("blacklist", "radar_range_m", "host_length_m", "lane_confirm_cycles", "min_lane_margin_m")
+    refuse_unknown(kind, params, (*keys, "max_leads", "map_file"))
+    map_file = params.get("map_file")
+    if map_file is not None and not (isinstance(map_file, str) and map_file):
+        raise ValueError(f"world_model: params.map_file must be a lane map file, got {map_file!r}")
     fusion = FusionConfig(
-        radar_range_m=float(params.get("radar_range_m", 50.0)),
-        blacklist=blacklist,
-        host_length_m=float(params.get("host_length_m", 4.77)),
+        radar_range_m=number(kind, params, "radar_range_m", 50.0, 0.0, 1000.0),
+        blacklist=station_ids(kind, params, "blacklist"),
+        host_length_m=number(kind, params, "host_length_m", 4.77, 0.5, 30.0),
         horizon_s=11.0,  # the platoon QP's 10 s plus the world model's age (see PlatoonControl)
         # A station changes lane only after a second (10 releases) of matches 1 m clearer than the other
         # lane: a car near the line, with a noisy GPS, is not projected into ours (seed 003 IV-B).
-        lane_confirm_cycles=int(params.get("lane_confirm_cycles", 10)),
-        min_lane_margin_m=float(params.get("min_lane_margin_m", 1.0)),
+        lane_confirm_cycles=integer(kind, params, "lane_confirm_cycles", 10, 1, 1000),
+        min_lane_margin_m=number(kind, params, "min_lane_margin_m", 1.0, 0.0, 10.0),
     )
-    lanemap = res.lane_map(params.get("map_file"))
-    return WorldModel(res.local_frame(), lanemap, fusion, int(params.get("max_leads", 10)))
+    return fusion, integer(kind, params, "max_leads", 10, 1, 64), map_file
+
+
+def _world_model(params: Mapping[str, Any], res: HostResources | None) -> Module:
+    from bywire.host.modules.estimation.world_model import WorldModel
+
+    assert res is not None
+    fusion, max_leads, map_file = _world_model_settings(params)
+    return WorldModel(res.local_frame(), res.lane_map(map_file), fusion, max_leads)
 
 
 def _platoon(params: Mapping[str, Any], res: HostResources | None) -> Module:
@@ -343,6 +363,12 @@ def _lidar_perception(params: Mapping[str, Any], res: HostResources | None) -> M
     return LidarPerception(params)
 
 
+def _lane_offset_check(params: Mapping[str, Any]) -> None:
+    from bywire.host.modules.estimation.lane_offset import LaneOffsetModule
+
+    LaneOffsetModule(None, params)
+
+
 def _lane_offset(params: Mapping[str, Any], res: HostResources | None) -> Module:
     from bywire.host.modules.estimation.lane_offset import LaneOffsetModule
 
@@ -365,6 +391,11 @@ def _urban_control(params: Mapping[str, Any], res: HostResources | None) -> Modu
     from bywire.host.modules.control.urban import UrbanControl
 
     return UrbanControl(params, res.urban_log() if res is not None else None)
+
+
+def _without_resources(build: Builder) -> Callable[[Mapping[str, Any]], Module]:
+    """The check of a kind whose module reads its params when it is made, and is cheap to make."""
+    return lambda params: build(params, None)
 
 
 KINDS: dict[str, ModuleKind] = {
@@ -399,6 +430,7 @@ KINDS: dict[str, ModuleKind] = {
             _longitudinal,
             False,
             "seed 000 11.2 override controller",
+            check=_without_resources(_longitudinal),
         ),
         ModuleKind(
             "ecu_tx",
@@ -409,6 +441,7 @@ KINDS: dict[str, ModuleKind] = {
             _ecu_tx,
             doc="requests and heartbeat to the ECU",
             always_release=True,
+            check=_ecu_tx_max_age_ms,
         ),
         # Cooperative driving (seed 003)
         ModuleKind("gps_serial", (), (g.GPS_NMEA,), 0.02, 0.010, _gps_serial, doc="GPS/INS serial line"),
@@ -431,7 +464,16 @@ KINDS: dict[str, ModuleKind] = {
             False,
             "NMEA + odometry -> pose (seed 003 II-h)",
         ),
-        ModuleKind("v2v_rx", (g.POSE,), (g.V2V_RECEIVED,), 0.02, 0.010, _v2v_rx, doc="hardened V2V receiver"),
+        ModuleKind(
+            "v2v_rx",
+            (g.POSE,),
+            (g.V2V_RECEIVED,),
+            0.02,
+            0.010,
+            _v2v_rx,
+            doc="hardened V2V receiver",
+            check=_v2v_rx_blacklist,
+        ),
         ModuleKind(
             "v2v_tx",
             (g.POSE,),
@@ -445,6 +487,7 @@ KINDS: dict[str, ModuleKind] = {
             doc="our CAM (EN 302 637-2 rules, or the GCDC profile's 10-25 Hz with the iCLCM)",
             # what the iCLCM says, read as it stands: never waited for (io/v2v.py)
             sampled=(g.PLATOON, g.WORLD_LEADS, m.ECU_STATUS),
+            check=_v2v_tx_settings,
         ),
         ModuleKind(
             "world_model",
@@ -455,6 +498,7 @@ KINDS: dict[str, ModuleKind] = {
             _world_model,
             False,
             "vehicle manager + lane map + radar fusion (seed 003 IV)",
+            check=_world_model_settings,
         ),
         ModuleKind(
             "platoon_control",
@@ -465,6 +509,7 @@ KINDS: dict[str, ModuleKind] = {
             _platoon,
             False,
             "seed 003 V-C/V-D platoon strategy",
+            check=_without_resources(_platoon),
         ),
         # Urban driving (seed 000)
         ModuleKind(
@@ -504,6 +549,7 @@ KINDS: dict[str, ModuleKind] = {
             _lidar_perception,
             False,
             "seed 000 Sec. 4-5 occupancy grid, objects and tracks",
+            check=_without_resources(_lidar_perception),
         ),
         ModuleKind(
             "lane_offset",
@@ -514,6 +560,7 @@ KINDS: dict[str, ModuleKind] = {
             _lane_offset,
             False,
             "seed 000 Sec. 6 the map's lateral offset from the lane markings",
+            check=_lane_offset_check,
         ),
         ModuleKind(
             "urban_behaviour",
@@ -534,6 +581,7 @@ KINDS: dict[str, ModuleKind] = {
             _urban_control,
             False,
             "seed 000 Sec. 11 lateral + longitudinal control",
+            check=_without_resources(_urban_control),
         ),
     )
 }

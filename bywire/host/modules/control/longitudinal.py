@@ -29,6 +29,7 @@ from bywire.host.modules.messages import (
     MissionCommand,
     Odometry,
 )
+from bywire.host.modules.module_params import make_dataclass
 from bywire.host.runtime.module import Module, ModuleContext
 from bywire.host.runtime.topics import SAFETY_LIMIT, SafetyLimit
 from bywire.protocol.ecu_types import RequestFlags
@@ -39,7 +40,7 @@ DEGRADE_DECEL_MPS2 = 1.5  # how fast a supervisor's speed limit is approached: f
 
 class LongitudinalModule(Module):
     def __init__(self, params: dict[str, Any] | None = None) -> None:
-        self.params = LongitudinalParams(**(params or {}))
+        self.params = make_dataclass("longitudinal", LongitudinalParams, params or {})
         self.state = LongitudinalState()
         self._limit_start: tuple[float, float] | None = None  # (limit's t_s, our speed when we saw it)
 

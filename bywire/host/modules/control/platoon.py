@@ -62,6 +62,7 @@ from bywire.host.modules.messages import (
     MissionCommand,
     Odometry,
 )
+from bywire.host.modules.module_params import integer, make_dataclass, number
 from bywire.host.platoon.follow_qp import KMH_TO_MPS, FollowParams, LeaderPrediction
 from bywire.host.platoon.lead_compensation import (
     JerkEstimator,
@@ -83,33 +84,52 @@ HOLD_DECEL_MPS2 = -1.0  # standstill request behind a stopped car; the ECU's hol
 STOP_REACHED_M = 0.3  # at the stop line
 
 
+KIND = "platoon_control"
+
+
 class PlatoonControl(Module):
     """Seed 003 V-C/V-D on the world model's leads, with the constraints and limits of the docstring."""
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         p = dict(params or {})
-        self.cruise_gain = float(p.pop("cruise_gain_per_s", 0.5))
-        self.max_leaders = int(p.pop("max_leaders", 10))
-        self.emergency_decel = float(p.pop("emergency_decel_mps2", 8.0))
-        self.limit_decel = float(p.pop("limit_decel_mps2", 1.0))
-        self.limit_lead_s = float(p.pop("limit_lead_s", 1.5))
-        self.amber_decel = float(p.pop("amber_decel_mps2", 3.0))
-        self.stop_margin = float(p.pop("stop_margin_m", 1.0))
-        self.stop_decel = float(p.pop("stop_decel_mps2", 2.0))
-        self.world_stale_s = float(p.pop("world_stale_s", 0.3))
-        # An emergency stop is not given up for one feasible cycle: the ECU is still braking harder than
-        # -4.5 then, and a QP that flickers feasible (the leader's prediction moves every update) would
-        # ask for less in the middle of it. Held this long after the last infeasible cycle.
-        self.emergency_hold_s = float(p.pop("emergency_hold_s", 0.5))
+        own = {  # this module's keys, with their defaults; the rest are the QP's (FollowParams)
+            "cruise_gain_per_s": 0.5,
+            "emergency_decel_mps2": 8.0,
+            "limit_decel_mps2": 1.0,
+            "limit_lead_s": 1.5,
+            "amber_decel_mps2": 3.0,
+            "stop_margin_m": 1.0,
+            "stop_decel_mps2": 2.0,
+            "world_stale_s": 0.3,
+            # An emergency stop is not given up for one feasible cycle: the ECU is still braking harder
+            # than -4.5 then, and a QP that flickers feasible (the leader's prediction moves every
+            # update) would ask for less in the middle of it. Held this long after the last infeasible
+            # cycle.
+            "emergency_hold_s": 0.5,
+            "slack_m": 2.0,
+            # 0 s: the paper's prediction (constant present acceleration); host/platoon/lead_compensation.py
+            "accel_lead_s": 0.0,
+            "jerk_tau_s": 0.2,
+        }
+        v = {k: number(KIND, p, k, d, 0.0) for k, d in own.items()}
+        self.max_leaders = integer(KIND, p, "max_leaders", 10, 1, 64)
+        for k in (*own, "max_leaders"):
+            p.pop(k, None)
+        self.cruise_gain = v["cruise_gain_per_s"]
+        self.emergency_decel = v["emergency_decel_mps2"]
+        self.limit_decel = v["limit_decel_mps2"]
+        self.limit_lead_s = v["limit_lead_s"]
+        self.amber_decel = v["amber_decel_mps2"]
+        self.stop_margin = v["stop_margin_m"]
+        self.stop_decel = v["stop_decel_mps2"]
+        self.world_stale_s = v["world_stale_s"]
+        self.emergency_hold_s = v["emergency_hold_s"]
         self._emergency_until_s = -math.inf
         self._emergency_accel = 0.0
-        slack = float(p.pop("slack_m", 2.0))
-        # 0 s: the paper's prediction (constant present acceleration); see host/platoon/lead_compensation.py
-        self.compensation = LeadCompensationParams(
-            lead_s=float(p.pop("accel_lead_s", 0.0)), jerk_tau_s=float(p.pop("jerk_tau_s", 0.2))
-        )
+        slack = v["slack_m"]
+        self.compensation = LeadCompensationParams(lead_s=v["accel_lead_s"], jerk_tau_s=v["jerk_tau_s"])
         p.setdefault("speed_max_mps", 100.0 * KMH_TO_MPS)  # GCDC: 0 .. 100 km/h
-        self.params = FollowParams(**p)
+        self.params = make_dataclass(KIND, FollowParams, p, also_known=(*own, "max_leaders"))
         self.strategy = PlatoonStrategy(self.params, slack)
         self._jerk = JerkEstimator(self.compensation)
         self._limit_mps = math.inf  # the zone we are in

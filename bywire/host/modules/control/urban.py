@@ -17,6 +17,7 @@ stays 0) remains in the summary for the JSON contract. Pure: it replays exactly 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any, Literal
@@ -37,6 +38,7 @@ from bywire.host.modules.messages import (
     ControlRequest,
     MissionCommand,
 )
+from bywire.host.modules.module_params import make_dataclass, number, refuse_unknown
 from bywire.host.modules.perception_messages import LANE_OFFSET, LaneOffsetEstimate
 from bywire.host.modules.planning.urban_behaviour import extrapolate, on_map
 from bywire.host.modules.urban_log import UrbanLog
@@ -72,11 +74,15 @@ class UrbanControl(Module):
 
     def __init__(self, params: Mapping[str, Any] | None = None, log: UrbanLog | None = None) -> None:
         params = dict(params or {})
-        self.preview_s = float(params.pop("preview_s", PREVIEW_S))
-        lat = {k[len("lateral_") :]: float(v) for k, v in params.items() if k.startswith("lateral_")}
+        self.preview_s = number("urban_control", params, "preview_s", PREVIEW_S, 0.0, 5.0)
+        params.pop("preview_s", None)
+        lat = {k: v for k, v in params.items() if k.startswith("lateral_")}
         lon = {k: v for k, v in params.items() if not k.startswith("lateral_")}
-        self.lat = LateralParams(**lat)
-        self.lon = LongitudinalParams(**lon)
+        lat_known = [f"lateral_{f.name}" for f in dataclasses.fields(LateralParams)]
+        lon_known = [f.name for f in dataclasses.fields(LongitudinalParams)]
+        refuse_unknown("urban_control", params, ["preview_s", *lat_known, *lon_known])
+        self.lat = make_dataclass("urban_control", LateralParams, lat, "lateral_")
+        self.lon = make_dataclass("urban_control", LongitudinalParams, lon)
         self.state = LongitudinalState()
         self.log = log or UrbanLog()
         self._steer = 0.0

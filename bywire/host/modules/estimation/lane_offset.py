@@ -31,6 +31,7 @@ import numpy as np
 
 from bywire.host.lateral import VehiclePose
 from bywire.host.modules.estimation.lidar_perception import MAX_POSE_AGE_S, SENSOR_FORWARD_M, scan_of
+from bywire.host.modules.module_params import number, refuse_unknown
 from bywire.host.modules.perception_messages import (
     LANE_OFFSET,
     PERCEPTION_SCAN,
@@ -69,8 +70,10 @@ class LaneOffsetModule(Module):
     def __init__(self, lane_index: Any, params: Mapping[str, Any] | None = None) -> None:
         params = dict(params or {})
         self.lane_index = lane_index
-        forward = float(params.get("sensor_forward_m", SENSOR_FORWARD_M))
-        self.min_correction_m = float(params.get("min_correction_m", MIN_CORRECTION_M))
+        kind = "lane_offset"
+        refuse_unknown(kind, params, ("sensor_forward_m", "min_correction_m"))
+        forward = number(kind, params, "sensor_forward_m", SENSOR_FORWARD_M, -10.0, 10.0)
+        self.min_correction_m = number(kind, params, "min_correction_m", MIN_CORRECTION_M, 0.0, 10.0)
         self.estimator = LaneOffsetEstimator(sensor_offset_m=(forward, 0.0))
         self._stamp_s = math.nan
         self._normal = (0.0, 0.0)

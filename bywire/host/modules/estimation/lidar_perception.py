@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from bywire.host.modules.module_params import integer, number, refuse_unknown
 from bywire.host.modules.perception_messages import (
     PERCEPTION_OBSTACLES,
     PERCEPTION_SCAN,
@@ -73,11 +74,13 @@ class LidarPerception(Module):
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         params = dict(params or {})
-        self.forward_m = float(params.get("sensor_forward_m", SENSOR_FORWARD_M))
+        kind = "lidar_perception"
+        refuse_unknown(kind, params, ("sensor_forward_m", "join_distance_m", "min_cells"))
+        self.forward_m = number(kind, params, "sensor_forward_m", SENSOR_FORWARD_M, -10.0, 10.0)
         self.grid = OccupancyGrid()
         self.segmentation = SegmentationParams(
-            join_distance_m=float(params.get("join_distance_m", 0.5)),
-            min_cells=int(params.get("min_cells", 3)),
+            join_distance_m=number(kind, params, "join_distance_m", 0.5, 0.0, 10.0),
+            min_cells=integer(kind, params, "min_cells", 3, 1, 10_000),
         )
         self.shape = ParticipantShape()
         # A car waiting at a stop line, hidden by one crossing between us: 3 s before it is given up.
