@@ -103,8 +103,10 @@ def run_sil(
     v2x_plant: Any = None
     gps_pipe: BytePipe | None = None
     if world is not None:
+        from bywire.protocol.v2x.codec import remember_own_encodings
         from bywire.protocol.v2x.transport import MemV2xTransport
 
+        remember_own_encodings()  # the simulated senders and the host share this process
         epoch = world.v2v.epoch_unix_s
         v2x_plant = MemV2xTransport(f"mem://sil-v2x-{tag}", receive=False)
         v2x_host = MemV2xTransport(f"mem://sil-v2x-{tag}", clock=lambda: epoch + clock.now())

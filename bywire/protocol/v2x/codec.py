@@ -275,7 +275,11 @@ class _RecentEncodings:
     host share one process) is already known to be the encoding of its value: when the decoded value is
     that value, node for node and type for type, encoding it again is the same function on the same
     input, and would give the same bytes. Anything else (another process's datagram, a mutated or replayed
-    one whose value differs, an entry pushed out) is re-encoded as before, so the verdict never changes."""
+    one whose value differs, an entry pushed out) is re-encoded as before, so the verdict never changes.
+
+    Off unless a process turns it on (`remember_own_encodings`): where sender and receiver are separate
+    processes (HIL, a car) it would never be asked about its own datagrams, and remembering each one
+    (a `repr` of the value) would be pure cost on every encode."""
 
     # Datagrams are decoded soon after they are sent (the GCDC heat: ~400 a second, delivered within
     # half a second): the newest thousand are plenty.
@@ -285,8 +289,11 @@ class _RecentEncodings:
         # An OrderedDict drops its oldest entry in O(1); a dict's first key is found past the slots
         # of every entry deleted since it was last resized.
         self._by_data: collections.OrderedDict[bytes, tuple[Any, str, str]] = collections.OrderedDict()
+        self.enabled = False
 
     def remember(self, data: bytes, spec: Any, type_name: str, value: Any) -> None:
+        if not self.enabled:
+            return
         entries = self._by_data
         entries.pop(data, None)
         if len(entries) >= self.SIZE:
@@ -306,6 +313,14 @@ class _RecentEncodings:
 
 
 _ENCODED = _RecentEncodings()
+
+
+def remember_own_encodings(enabled: bool = True) -> None:
+    """Let the canonical check skip re-encoding the datagrams this process encoded (see
+    `_RecentEncodings`): for a process that both sends and receives V2X, as SIL does."""
+    _ENCODED.enabled = enabled
+    if not enabled:
+        _ENCODED.clear()
 
 
 def check_canonical(spec: Any, type_name: str, value: dict[str, Any], data: bytes, what: str) -> None:

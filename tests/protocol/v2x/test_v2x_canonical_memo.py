@@ -18,6 +18,14 @@ from tests.protocol.v2x.test_v2x_codec import T0_S, vehicle_states
 ICLCM = "IGAMECooperativeLaneChangeMessage"
 
 
+@pytest.fixture(autouse=True)
+def _remembered() -> object:
+    """The shortcut is on where a process receives what it sent (SIL), off otherwise."""
+    codec.remember_own_encodings(True)
+    yield
+    codec.remember_own_encodings(False)
+
+
 def _outcome(data: bytes, reference_s: float) -> object:
     try:
         return decode(data, reference_s)
@@ -64,6 +72,15 @@ def test_every_datagram_gets_the_verdict_of_the_reference_path(data: st.DataObje
     assert _outcome(received, reference_s) == with_shortcut
 
 
+def test_nothing_is_remembered_unless_the_process_asks() -> None:
+    """Off (HIL, a car: sender and receiver in separate processes) an encode costs no `repr`."""
+    codec.remember_own_encodings(False)
+    spec = compiled(SchemaSet.ICLCM)
+    data = encode(CooperativeState(9, T0_S, ControllerType.CACC, -2.34, lane=2))
+    assert len(codec._ENCODED) == 0
+    assert not codec._ENCODED.known(data, spec, ICLCM, spec.decode(ICLCM, data))
+
+
 def test_our_own_datagram_is_known_only_with_its_spec_type_and_value() -> None:
     spec = compiled(SchemaSet.ICLCM)
     data = encode(CooperativeState(9, T0_S, ControllerType.CACC, -2.34, lane=2))
@@ -87,6 +104,7 @@ def test_values_that_may_encode_differently_are_not_the_same(a: object, b: objec
 
 def test_the_memory_is_bounded_and_keeps_the_newest() -> None:
     memo = _RecentEncodings()
+    memo.enabled = True
     spec = object()
     for k in range(_RecentEncodings.SIZE + 10):
         memo.remember(k.to_bytes(4, "big"), spec, "T", {"k": k})
