@@ -91,8 +91,11 @@ def test_the_safe_outcome_is_monotone_in_the_stall() -> None:
 @pytest.mark.parametrize("stall_ms", [5, 30, 100, 300, 2000])
 def test_a_frozen_cycle_on_the_wall_clock_executive(stall_ms: int) -> None:
     """One cycle of the real executive freezes; the outcome is judged by what the ECU measured:
-    SAFE_STOP with LOOP_STALL exactly when its largest gap between cycles exceeded the bound (a
-    loaded machine may stall a 5 ms freeze past it, and then stopping is right)."""
+    LOOP_STALL exactly when its largest gap between cycles exceeded the bound (a loaded machine may
+    stall a 5 ms freeze past it, and then stopping is right), and SAFE_STOP with it. The rig's car
+    and host are a thread of this process: starved by a loaded machine, their frames go stale and
+    the ECU stops for that (a timeout), which is right too, but never for a loop stall it did not
+    measure."""
     freeze = {"armed": False, "done": False}
 
     def hook(_deadline: float) -> None:
@@ -103,16 +106,21 @@ def test_a_frozen_cycle_on_the_wall_clock_executive(stall_ms: int) -> None:
     with WallRig(step_hook=hook) as rig:
         rig.engage()
         rig.wait(0.2)
-        gap_before = rig.ecu.max_cycle_gap_s
         freeze["armed"] = True
         assert rig.wait_for(lambda: freeze["done"], 10.0)
         rig.wait(0.2)
-        stalled = rig.ecu.max_cycle_gap_s > LOOP_STALL_MAX_GAP_S
-        if stall_ms / 1000.0 > LOOP_STALL_MAX_GAP_S:
-            assert stalled
-        assert (rig.state is EcuState.SAFE_STOP) == (stalled or gap_before > LOOP_STALL_MAX_GAP_S)
-        if stalled:
-            assert rig.ecu.last_command is not None and rig.ecu.last_command.faults_latched & Fault.LOOP_STALL
+    # read once the rig has stopped: the gap, the count and the latch are then of the same cycles
+    state, faults = rig.state, _fault_bits(rig)  # type: ignore[arg-type]
+    stalled = rig.ecu.max_cycle_gap_s > LOOP_STALL_MAX_GAP_S
+    assert stalled == (rig.ecu.loop_stalls > 0)
+    if stall_ms / 1000.0 > LOOP_STALL_MAX_GAP_S:
+        assert stalled
+    assert bool(faults & Fault.LOOP_STALL) == stalled
+    if stalled:
+        assert state is EcuState.SAFE_STOP
+    elif state is not EcuState.ENGAGED:
+        starved = Fault.VEHICLE_TIMEOUT | Fault.HOST_HEARTBEAT | Fault.REQUEST_INVALID | Fault.ESTOP_TIMEOUT
+        assert state is EcuState.SAFE_STOP and faults and not faults & ~starved, (state, faults)
 
 
 # --- frozen senders: a repeated counter is never fresh ---------------------------------------------

@@ -415,7 +415,7 @@ class ProcessWorker(WorkerState):
                     proc.kill()
         if self._pub is not None:
             self._pub.close()
-        if proc is not None:
+        if proc is not None and proc.pid is not None:  # one that never started has nothing to join
             proc.join(timeout=1.0)
 
 
