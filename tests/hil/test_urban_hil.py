@@ -129,6 +129,10 @@ def test_host_frozen_mid_turn_the_ecu_stops_the_car(tmp_path: Path) -> None:
     assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True and m["collisions"] == 0
 
 
+# In the slow set for its cost (80 s of wall time, the longest of the HIL stage); the planner's worker
+# process is tested in the default run by tests/host/modules/test_path_planner_process.py, and the lot
+# itself in SIL by tests/hil/test_urban_scenarios.py.
+@pytest.mark.slow
 def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
     """The zone planner on wall time: each plan is solved in the behaviour's worker process while the
     car holds, the host keeps its rhythm (no stale request, no stop), and the car parks between the two
@@ -146,7 +150,7 @@ def test_the_parking_lot_in_three_processes(tmp_path: Path) -> None:
     assert "ZoneRecovery" not in leaves and m["min_speed_mps"] < -0.2
 
 
-@pytest.mark.slow  # ~70 s of wall time; the default HIL stage has the parking lot's planner on wall time
+@pytest.mark.slow  # ~70 s of wall time, as the parking lot above
 def test_the_dead_end_kturn_in_three_processes(tmp_path: Path) -> None:
     """The K-turn planned on the road on wall time: the plan is solved in the worker process while the
     car holds at the dead end, then three legs within the 9.1 m street, no curb touched, and back."""

@@ -1,8 +1,7 @@
 """The urban driving scenarios (seed 000) in SIL: the FMU Passat through the ECU, the host's urban modules on
 the runtime, the RNDF/MDF world with its traffic. Every shipped scenario with its own checks, plus what each
-is about (the order at the four-way stop, the stop in the intersection, ...); the DARPA sample mission and NQE
-area A bounded to their first 200 s by default (whole: `-m slow`); a recording replays exactly; the report's
-plots are written."""
+is about (the order at the four-way stop, the stop in the intersection, ...); a recording replays exactly; the
+report's plots are written. The DARPA missions: tests/hil/test_urban_missions.py."""
 
 from __future__ import annotations
 
@@ -13,11 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from shared_data import shared_data_dir
+from sil_urban import failed, run
 
-from bywire.hil.evaluate import evaluate
-from bywire.hil.scenario import URBAN_HAND_MADE, Check, Scenario, load_scenario
-from bywire.hil.sil import run_sil
+from bywire.hil.scenario import URBAN_HAND_MADE, load_scenario
 
 HAND_MADE = URBAN_HAND_MADE
 CONTRACT = (
@@ -31,21 +28,6 @@ CONTRACT = (
     "lateral_error_max_m",
     "time_s",
 )
-SAMPLE = shared_data_dir() / "rndf" / "darpa_sample" / "Sample_RNDF.txt"
-NQE = shared_data_dir() / "rndf" / "darpa_nqe" / "nqe_rndf.rdf"
-
-
-def run(scenario: Scenario, run_dir: Path | None = None, record: Path | None = None) -> dict[str, Any]:
-    result = run_sil(scenario, run_dir, record=record)
-    doc = evaluate(scenario, result.plant, result.host, result.extra, "sil", result.traffic)
-    doc["_extra"] = result.extra
-    return doc
-
-
-def failed(doc: dict[str, Any]) -> str:
-    return json.dumps([c for c in doc["checks"] if not c["passed"]], indent=1) + json.dumps(
-        doc.get("state_history", [])
-    )
 
 
 def leaves(doc: dict[str, Any]) -> list[str]:
@@ -131,58 +113,6 @@ def test_what_each_scenario_is_about(hand_made: tuple[str, dict[str, Any]]) -> N
     elif name == "host_freeze_in_turn":
         assert m["final_state"] == "SAFE_STOP" and m["standstill_held"] is True
         assert m["hsm_state_at_fault"] == "Intersection/IntersectionDriveInside"
-
-
-def _bounded(name: str, seconds: float, min_checkpoints: int) -> Scenario:
-    sc = load_scenario(name)
-    checks = tuple(c for c in sc.checks if c.metric not in ("checkpoints_reached", "time_s"))
-    checks += (Check("first checkpoints", "checkpoints_reached", "min", min_checkpoints),)
-    return dataclasses.replace(sc, duration_s=seconds, checks=checks)
-
-
-def _need(path: Path) -> None:
-    if not path.is_file():
-        pytest.skip(f"shared RNDF data not found at {path} (set BYWIRE_SHARED_DATA)")
-
-
-def test_darpa_sample_mission_first_200_s(tmp_path: Path) -> None:
-    _need(SAMPLE)
-    sc = _bounded("darpa_sample_mission", 200.0, 4)
-    doc = run(sc, tmp_path)
-    assert doc["verdict"] == "pass", failed(doc)
-    m = doc["metrics"]
-    assert m["checkpoints_reached_list"][:4] == [1, 2, 3, 2]
-    assert m["lateral_error_rms_m"] <= 0.2 and m["lateral_error_max_m"] <= 0.5
-    assert m["stop_line_stops"] >= 2 and m["max_speed_mps"] > 8.0
-
-
-def test_exits_tighter_than_full_lock_stay_within_their_lanes() -> None:
-    """The DARPA sample's two exits the road graph cannot bring under full lock, from checkpoint 9 to 1:
-    1.2.6 -> 4.1.1 planned on its own lanes (followed on the graph's curve it took the car 0.4 m off
-    the road); 3.2.13 -> 1.2.5 has no plan inside its two 12 ft lanes at any number of moves, and on
-    the graph's curve the car keeps within 0.3 m of them."""
-    _need(SAMPLE)
-    doc = run(load_scenario("unsteerable_exit"))
-    assert doc["verdict"] == "pass", failed(doc)
-    m = doc["metrics"]
-    assert m["road_departure_m"] <= 0.05 and m["lane_departure_m"] < 0.3 and m["behaviour_faults"] == 0
-
-
-def test_nqe_area_a_first_200_s() -> None:
-    _need(NQE)
-    doc = run(_bounded("nqe_area_a", 200.0, 6))
-    assert doc["verdict"] == "pass", failed(doc)
-    assert doc["metrics"]["checkpoints_reached_list"][:4] == [2, 1, 2, 1]
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["darpa_sample_mission", "nqe_area_a"])
-def test_whole_missions(name: str) -> None:
-    _need(SAMPLE if name.startswith("darpa") else NQE)
-    doc = run(load_scenario(name))
-    assert doc["metrics"]["mission_complete"], failed(doc)
-    assert doc["metrics"]["reverse_held"] == 0
-    assert doc["verdict"] == "pass", failed(doc)
 
 
 def test_a_recording_replays_exactly(tmp_path: Path) -> None:
