@@ -73,10 +73,13 @@ def make_dataclass(
     kwargs: dict[str, Any] = {}
     for key, value in params.items():
         name = key[len(prefix) :]
-        default = fields[name].default
+        default: Any = fields[name].default
         nullable = "None" in str(fields[name].type)
-        numeric = isinstance(default, int | float) and not isinstance(default, bool)
-        if numeric and not (value is None and nullable):
+        if (
+            isinstance(default, int | float)
+            and not isinstance(default, bool)
+            and not (value is None and nullable)
+        ):
             value = number(kind, params, key, float(default))
         kwargs[name] = value
     try:
