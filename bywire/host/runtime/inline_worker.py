@@ -103,7 +103,7 @@ def background() -> Iterator[None]:
             b.depth -= 1
         return
     wall0, thread0 = time.perf_counter(), time.thread_time()
-    proc0, sw0 = time.process_time(), _voluntary_switches()
+    proc0, sw0 = time.process_time(), voluntary_switches()
     b.depth, b.since_wall_s = 1, wall0
     try:
         yield
@@ -112,7 +112,7 @@ def background() -> Iterator[None]:
         d_wall, d_proc = time.perf_counter() - wall0, time.process_time() - proc0
         b.wall_s += d_wall
         b.thread_cpu_s += time.thread_time() - thread0
-        b.switches += _voluntary_switches() - sw0
+        b.switches += voluntary_switches() - sw0
         wd = _Watchdog._instance
         armed = None if wd is None else wd.armed
         if wd is not None and armed is not None:  # the step's clocks stop while it works in the background
@@ -244,7 +244,7 @@ class InlineWorker(WorkerState):
         published_before = self.ctx.published
         bg = _BACKGROUND
         bg0 = (bg.wall_s, bg.thread_cpu_s, bg.switches)
-        switches0 = _voluntary_switches()
+        switches0 = voluntary_switches()
         cpu0 = time.thread_time()
         wall0 = time.perf_counter()
 
@@ -310,7 +310,7 @@ def _had_its_cpu(step_cpu0_s: float, timeout_s: float) -> bool:
     return time.process_time() - step_cpu0_s >= timeout_s
 
 
-def _voluntary_switches() -> int:
+def voluntary_switches() -> int:
     """Times the calling thread gave up the CPU itself (sleep, I/O, a lock, the GIL)."""
     return resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw
 
@@ -319,10 +319,10 @@ def charged_time_s(wall_s: float, cpu0_s: float, switches0: int, deadline_s: flo
     """The execution time a step that took `wall_s` is judged by (see the module docstring): its
     wall time, unless that is over the deadline while the step never blocked, in which case only
     the CPU time it got (`time.thread_time()` since `cpu0_s`) was its own. Call it on the step's
-    thread right after the step; `switches0` is `_voluntary_switches()` from before it."""
+    thread right after the step; `switches0` is `voluntary_switches()` from before it."""
     if wall_s <= deadline_s:
         return wall_s  # on time: nothing to ask (and two system calls saved)
-    if _voluntary_switches() != switches0:
+    if voluntary_switches() != switches0:
         return wall_s  # it waited for something itself
     return min(wall_s, time.thread_time() - cpu0_s)
 

@@ -15,6 +15,14 @@ function, pickled by name: `host.modules.build_isolated`), so only modules that 
 started) makes sure both streams are connected before the first release: a subscriber that joins late
 misses what was sent before. After the handshake the host sends the newest object of every input topic.
 
+In lockstep (SIL) the run must not depend on the machine, as with the inline worker
+(`inline_worker`): a step kept off the CPU by other processes is charged the CPU time it used, not
+the wall time it waited (`charged_time_s`, in the child), and the scheduler's wait for it ends at
+the lockstep timeout only once the child has had that much CPU (spinning) or nothing of it is
+runnable (blocked): a starved child is waited for. Ending the wait on the wall clock alone let
+simulated time run on while the child still computed, so its objects reached the behaviour after
+as many cycles as the machine happened to allow.
+
 The supervisor sees a killed or crashed child as a dead worker (`alive()` false), a raising step as
 an exception, and a hung one by its CPU time from /proc, exactly like a thread; `abandon` kills the
 process. Scenario fault injection reaches process workers only by `module_kill`: exceptions, hangs
@@ -33,6 +41,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bywire.clock import Clock
+from bywire.host.runtime.inline_worker import charged_time_s, voluntary_switches
 from bywire.host.runtime.log_schema import register_type
 from bywire.host.runtime.module import Module, ModuleContext, ModuleSpec
 from bywire.host.runtime.store import ObjectStore
@@ -126,6 +135,7 @@ def _child_main(
     out_ep: str,
     rt_priority: int = 0,
     build: ModuleBuilder | None = None,
+    lockstep: bool = False,
 ) -> None:
     from bywire.host.runtime.transport import TopicPublisher, TopicSubscriber
 
@@ -175,6 +185,7 @@ def _child_main(
             # The inputs the host published before this release came down the stream before it: the
             # step sees the local store as of the step signal, not what arrived while it waited.
             ctx.as_of = ctl.last_store_seq
+            switches0, cpu0 = voluntary_switches(), time.thread_time()
             wall0 = time.perf_counter()
             before = ctx.published
             try:
@@ -186,16 +197,12 @@ def _child_main(
                 )
                 time.sleep(0.1)
                 return
+            exec_s = time.perf_counter() - wall0
+            if lockstep:  # the time others took from the step is not its own (see the module docstring)
+                exec_s = charged_time_s(exec_s, cpu0, switches0, spec.deadline_s)
             pub.send(
                 status_topic,
-                WorkerSignal(
-                    msg.t_s,
-                    "done",
-                    msg.seq,
-                    pid,
-                    time.perf_counter() - wall0,
-                    published=ctx.published - before,
-                ),
+                WorkerSignal(msg.t_s, "done", msg.seq, pid, exec_s, published=ctx.published - before),
             )
     finally:
         sub.close()
@@ -221,9 +228,12 @@ class ProcessWorker(WorkerState):
         clock: Clock,
         generation: int,
         build: ModuleBuilder | None = None,
+        lockstep: bool = False,
     ) -> None:
         super().__init__(spec, generation, clock)
         self._build = build
+        self.lockstep = lockstep
+        self._release_cpu_s: float | None = None  # the child's CPU time at the release (lockstep)
         self.pid: int | None = None
         self.process: Any = None
         self._store = store
@@ -271,6 +281,7 @@ class ProcessWorker(WorkerState):
                     out_ep,
                     rt_priority,
                     self._build,
+                    self.lockstep,
                 ),
                 name=f"bywire-{self.spec.name}#{self.generation}",
                 daemon=True,
@@ -346,6 +357,8 @@ class ProcessWorker(WorkerState):
         self.busy_since_s = self._clock.now()  # the real release instant (a chain releases late)
         self.stats.releases += 1
         self.stats.last_release_s = now_s
+        if self.lockstep:
+            self._release_cpu_s = self.cpu_time_s()
         self._pub.send(self._ctl_topic, WorkerSignal(now_s, "step", self._seq))
         return True
 
@@ -354,11 +367,21 @@ class ProcessWorker(WorkerState):
         self._pump()
         while self.busy_since_s is not None and self.failure is None:
             remaining = end - time.monotonic()
+            if remaining <= 0 and self.lockstep and self._starved(timeout_s):
+                remaining = DEATH_POLL_S  # kept off the CPU, not stuck: simulated time waits for it
             if remaining <= 0 or not self.process.is_alive():
                 self._pump()
                 return self.busy_since_s is None
             self._status_wait(min(remaining, DEATH_POLL_S))
         return True
+
+    def _starved(self, timeout_s: float) -> bool:
+        """Late on the wall clock, yet a thread of the child is runnable and it has had less than
+        `timeout_s` of CPU since the release: other processes had the CPU (`inline_worker`'s rule)."""
+        cpu = self.cpu_time_s()
+        if cpu is None or self._release_cpu_s is None or cpu - self._release_cpu_s >= timeout_s:
+            return False
+        return self.run_state() == "R"
 
     def alive(self) -> bool:
         if not self._booted.is_set():
@@ -426,7 +449,7 @@ def process_worker_maker(lockstep: bool, build: ModuleBuilder) -> Any:
     def make(entry: Any, store: ObjectStore, clock: Clock, injector: Any) -> ProcessWorker:
         params = dict(entry.params)
         return ProcessWorker(
-            entry.spec, str(params.get("kind")), params, store, clock, entry.generation, build
+            entry.spec, str(params.get("kind")), params, store, clock, entry.generation, build, lockstep
         )
 
     return make
