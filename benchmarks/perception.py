@@ -63,6 +63,7 @@ def bench_kitti(seconds: float) -> dict[str, Any] | None:
     from bywire.host.lateral import VehiclePose
     from bywire.host.perception.ego_pose import EgoPose
     from bywire.host.perception.grid import OccupancyGrid, warm_up
+    from bywire.host.perception.lane_markers import warm_up as warm_up_markers
     from bywire.host.perception.lane_offset import LaneOffsetEstimator
     from bywire.host.perception.scan import Scan, read_kitti_bin
     from bywire.host.perception.segmentation import segment
@@ -76,6 +77,7 @@ def bench_kitti(seconds: float) -> dict[str, Any] | None:
         return None
     scans = [read_kitti_bin(f) for f in files]
     warm_up()  # the grid's compiled kernels, loaded before the clock runs (as the host's module does)
+    warm_up_markers()  # and the lane markers'
     grid, frame_grid = OccupancyGrid(), OccupancyGrid()
     tracker, estimator = Tracker(), LaneOffsetEstimator()
     centreline = np.array([[-1e4, 0.0], [1e4, 0.0]])  # a map lane along the drive

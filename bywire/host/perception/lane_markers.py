@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -52,6 +53,7 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from . import lane_marker_kernels
 from .scan import HDL64E_BEAMS, Scan
 
 __all__ = [
@@ -62,8 +64,10 @@ __all__ = [
     "MarkerParams",
     "PlanarPose",
     "extract_features",
+    "extract_features_reference",
     "fit_ground_plane",
     "marker_png",
+    "warm_up",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -181,7 +185,67 @@ def _fit_plane(
     # towards the sidewalk (a quarter of the ground near a car, 15 cm higher), and far sidewalk then
     # fits it as well as the road. RANSAC picks the plane with the most points within half the
     # tolerance; the road has the most, as the rings near the car, the densest, lie on it.
-    xb, yb, zb = x[band], y[band], z[band]
+    plane = _ransac_plane(x[band], y[band], z[band], params, _inlier_counts)
+    if plane is None:
+        return flat
+    for _ in range(2):  # least squares on the inliers, twice: the sample's three points are noisy
+        res_all = z - (plane[0] + plane[1] * x + plane[2] * y)
+        sel = np.abs(res_all) <= params.ground_tolerance_m
+        refit = _lsq_plane(x[sel], y[sel], z[sel])
+        if refit is None:
+            break
+        plane = refit
+    return plane
+
+
+def _fit_plane_compiled(
+    x: npt.NDArray[np.float32],
+    y: npt.NDArray[np.float32],
+    z: npt.NDArray[np.float32],
+    sensor_height_m: float,
+    params: MarkerParams,
+) -> tuple[float, float, float]:
+    """`_fit_plane` in `lane_marker_kernels`' passes: the same plane, bit for bit."""
+    flat = (-float(sensor_height_m), 0.0, 0.0)
+    n = -(-x.size // _PLANE_STRIDE)
+    xf, yf, zf, xb, yb, zb = np.empty((6, n))
+    m, mb = lane_marker_kernels.plane_points(
+        x, y, z, _PLANE_STRIDE, params.min_range_m**2, params.max_range_m**2, flat[0],
+        params.ground_band_m, xf, yf, zf, xb, yb, zb,
+    )  # fmt: skip
+    if mb < _MIN_PLANE_POINTS:
+        return flat
+    plane = _ransac_plane(xb[:mb], yb[:mb], zb[:mb], params, _inlier_counts_compiled)
+    if plane is None:
+        return flat
+    xs, ys, zs = np.empty((3, m))
+    for _ in range(2):
+        k = lane_marker_kernels.plane_inliers(
+            xf[:m], yf[:m], zf[:m], *plane, params.ground_tolerance_m, xs, ys, zs
+        )
+        refit = _lsq_plane(xs[:k], ys[:k], zs[:k])
+        if refit is None:
+            break
+        plane = refit
+    return plane
+
+
+InlierCounter = Callable[
+    [
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float32],
+        np.float32,
+    ],
+    npt.NDArray[np.intp],
+]
+
+
+def _ransac_plane(
+    xb: FloatArray, yb: FloatArray, zb: FloatArray, params: MarkerParams, inlier_counts: InlierCounter
+) -> tuple[float, float, float] | None:
+    """The RANSAC's plane through the band points xb, yb, zb (None: no candidate is a road)."""
     tri = _ransac_samples(xb.size)
     p0 = np.stack((xb[tri[:, 0]], yb[tri[:, 0]], zb[tri[:, 0]]), axis=1)
     e1 = np.stack((xb[tri[:, 1]], yb[tri[:, 1]], zb[tri[:, 1]]), axis=1) - p0
@@ -192,7 +256,7 @@ def _fit_plane(
     normal[ok] /= norm[ok, None]
     ok &= np.abs(normal[:, 2]) >= math.cos(_MAX_TILT_RAD)  # a road, not a wall
     if not ok.any():
-        return flat
+        return None
     normal, p0 = normal[ok], p0[ok]
     # z = a + b x + c y of each candidate
     b = -normal[:, 0] / normal[:, 2]
@@ -201,16 +265,21 @@ def _fit_plane(
     probe = slice(None, None, _RANSAC_STRIDE)
     xp, yp, zp = (v[probe].astype(np.float32) for v in (xb, yb, zb))
     coef = np.stack((a, b, c)).astype(np.float32)
-    inliers = _inlier_counts(coef, xp, yp, zp, np.float32(0.5 * params.ground_tolerance_m))
+    inliers = inlier_counts(coef, xp, yp, zp, np.float32(0.5 * params.ground_tolerance_m))
     best = int(np.argmax(inliers))
-    plane: tuple[float, float, float] = (float(a[best]), float(b[best]), float(c[best]))
-    for _ in range(2):  # least squares on the inliers, twice: the sample's three points are noisy
-        res_all = z - (plane[0] + plane[1] * x + plane[2] * y)
-        refit = _lsq_plane(x, y, z, np.abs(res_all) <= params.ground_tolerance_m)
-        if refit is None:
-            break
-        plane = refit
-    return plane
+    return (float(a[best]), float(b[best]), float(c[best]))
+
+
+def _inlier_counts_compiled(
+    coef: npt.NDArray[np.float32],
+    x: npt.NDArray[np.float32],
+    y: npt.NDArray[np.float32],
+    z: npt.NDArray[np.float32],
+    tolerance: np.float32,
+) -> npt.NDArray[np.intp]:
+    counts = np.empty(coef.shape[1], np.intp)
+    lane_marker_kernels.inlier_counts(coef, x, y, z, tolerance, counts)
+    return counts
 
 
 def _inlier_counts(
@@ -251,13 +320,10 @@ def _ransac_samples(n: int) -> npt.NDArray[np.int64]:
     return out
 
 
-def _lsq_plane(
-    x: FloatArray, y: FloatArray, z: FloatArray, sel: BoolArray
-) -> tuple[float, float, float] | None:
-    """Least-squares z = a + b x + c y through the selected points (None: too few, or degenerate)."""
-    if np.count_nonzero(sel) < _MIN_PLANE_POINTS:
+def _lsq_plane(xs: FloatArray, ys: FloatArray, zs: FloatArray) -> tuple[float, float, float] | None:
+    """Least-squares z = a + b x + c y through the points (None: too few, or degenerate)."""
+    if xs.size < _MIN_PLANE_POINTS:
         return None
-    xs, ys, zs = x[sel], y[sel], z[sel]
     # The 3 x 3 normal equations (lstsq's answer without its (N, 3) copy), summed without BLAS: its
     # threads fight the other processes for 2 cores and turned a 0.1 ms sum into 40 ms.
     sx, sy, sxx, syy, sxy = xs.sum(), ys.sum(), (xs * xs).sum(), (ys * ys).sum(), (xs * ys).sum()
@@ -294,7 +360,89 @@ def extract_features(
     which are stored beam by beam); they may be interleaved across beams. `ground_mask` (per point of
     the scan) is what ground must also be: the occupancy grid's `~OccupancyGrid.obstacle_points(scan,
     pose)` keeps paint and the foot of curbs off cells with an obstacle's height step in them.
+
+    Computed in `lane_marker_kernels`' compiled passes (`warm_up` loads them); the features are
+    `extract_features_reference`'s, bit for bit, for a scan of the documented dtypes (float32 points
+    and reflectance, int16 beams; others are converted to them first).
     """
+    n = len(scan)
+    empty = np.zeros((0, 2))
+    no_plane = (-float(scan.sensor_height_m), 0.0, 0.0)
+    if n == 0:
+        return MarkerFeatures(empty, empty, np.zeros(0, bool), no_plane)
+    xyz = np.ascontiguousarray(scan.xyz_m, np.float32)
+    beam_scan = np.ascontiguousarray(scan.beam, np.int16)
+    refl_scan = np.ascontiguousarray(scan.reflectance, np.float32)
+    order = _NO_ORDER
+    if n > 1 and not bool(np.all(beam_scan[1:] >= beam_scan[:-1])):
+        order = np.argsort(beam_scan, kind="stable")  # grouped by beam, firing order kept
+    mask = _NO_MASK
+    if ground_mask is not None:
+        mask = np.ascontiguousarray(ground_mask, dtype=bool)
+        if mask.shape != (n,):
+            raise ValueError(f"ground_mask has shape {mask.shape}, the scan {n} points")
+    # Only points near the ground and in range can be paint or the foot of a curb: the rest (walls,
+    # cars, trees, the far road; a third of a scan) is dropped before anything else is computed. Their
+    # position in the scan (grouped by beam) is kept (`idx`) so that neighbours in firing order are known.
+    idx = np.empty(n, np.intp)
+    x, y, z, r2, refl = np.empty((5, n), np.float32)
+    beam = np.empty(n, np.int16)
+    in_mask = np.empty(n, bool)
+    m = lane_marker_kernels.candidates(
+        xyz, beam_scan, refl_scan, mask, order, np.float32(scan.sensor_height_m),
+        np.float32(params.ground_band_m + params.curb_step_max_m), np.float32(params.min_range_m**2),
+        np.float32(params.max_range_m**2), idx, x, y, z, r2, beam, refl, in_mask,
+    )  # fmt: skip
+    if m == 0:
+        return MarkerFeatures(empty, empty, np.zeros(n, bool), no_plane)
+    idx, x, y, z, r2, refl = idx[:m], x[:m], y[:m], z[:m], r2[:m], refl[:m]
+    beam, in_mask = beam[:m], in_mask[:m]
+    if int(beam.min()) < 0:
+        raise ValueError(f"beam {int(beam.min())}: beams are numbered from 0")
+    plane = _fit_plane_compiled(x, y, z, scan.sensor_height_m, params)
+    height = np.empty(m, np.float32)
+    ground = np.empty(m, bool)
+    ground_out = np.zeros(n, bool)
+    a, b, c = (np.float32(v) for v in plane)
+    lane_marker_kernels.ground(
+        x, y, z, in_mask, idx, order, a, b, c, np.float32(params.ground_tolerance_m), height, ground,
+        ground_out,
+    )  # fmt: skip
+
+    paint = np.empty(m, bool)
+    lane_marker_kernels.paint(
+        x, y, refl, beam, idx, ground, max(int(beam.max()) + 1, HDL64E_BEAMS), _REFLECTANCE_LEVELS,
+        np.float64(np.float32(params.paint_contrast)), np.float32(params.paint_max_width_m),
+        np.float32(params.paint_isolation_m), params.paint_max_neighbours, paint,
+    )  # fmt: skip
+    curb = np.empty(m, np.intp)
+    k = lane_marker_kernels.curbs(
+        r2, height, beam, idx, ground, _beam_step_rad(beam_scan if order is _NO_ORDER else beam_scan[order]),
+        np.float32(params.curb_step_max_m + params.ground_tolerance_m), np.float32(params.curb_window_m),
+        np.float32(params.curb_step_min_m), np.float32(params.curb_step_max_m), params.curb_max_missing, curb,
+    )  # fmt: skip
+    paint_xy = np.column_stack((x[paint], y[paint])).astype(np.float64)
+    curb_xy = np.column_stack((x[curb[:k]], y[curb[:k]])).astype(np.float64)
+    return MarkerFeatures(paint_xy, curb_xy, ground_out, plane)
+
+
+_NO_ORDER = np.zeros(0, np.intp)
+_NO_MASK = np.zeros(0, bool)
+
+
+def _beam_step_rad(beam_sorted: npt.NDArray[np.int16]) -> npt.NDArray[np.float32]:
+    """A beam's angle between points: a turn over its points per turn (in the whole scan, grouped by
+    beam here, so that each beam's count is where its group ends less where it starts)."""
+    beam_ids = np.arange(max(HDL64E_BEAMS, int(beam_sorted[-1]) + 1) + 1, dtype=beam_sorted.dtype)
+    per_turn = np.diff(np.searchsorted(beam_sorted, beam_ids))
+    return (2.0 * np.pi / np.maximum(per_turn, 1)).astype(np.float32)
+
+
+def extract_features_reference(
+    scan: Scan, params: MarkerParams = MarkerParams(), ground_mask: BoolArray | None = None
+) -> MarkerFeatures:
+    """`extract_features` in numpy, step by step as the module docstring describes them: the reference
+    the compiled passes are held equal to (tests), and the place to read the method."""
     n = len(scan)
     empty = np.zeros((0, 2))
     no_plane = (-float(scan.sensor_height_m), 0.0, 0.0)
@@ -331,12 +479,7 @@ def extract_features(
     adjacent = (beam[1:] == beam[:-1]) & (np.diff(idx) == 1)  # subset i and i + 1 are scan neighbours
 
     paint = _paint(x, y, refl, beam, ground, adjacent, params)
-    # A beam's angle between points: a turn over its points per turn (in the whole scan); the scan is
-    # grouped by beam here, so each beam's count is where its group ends less where it starts.
-    beam_ids = np.arange(max(HDL64E_BEAMS, int(beam_all[-1]) + 1) + 1, dtype=beam_all.dtype)
-    per_turn = np.diff(np.searchsorted(beam_all, beam_ids))
-    dphi = (2.0 * np.pi / np.maximum(per_turn, 1)).astype(np.float32)
-    curb_xy = _curbs(x, y, r2, height, beam, idx, ground, dphi, params)
+    curb_xy = _curbs(x, y, r2, height, beam, idx, ground, _beam_step_rad(beam_all), params)
 
     ground_sorted = np.zeros(n, bool)
     ground_sorted[idx] = ground
@@ -467,6 +610,22 @@ def _curbs(
     mid = np.bincount(run[top], weights=(i[top] + j[top]) / 2.0) / np.bincount(run[top])
     m = sub[np.rint(mid).astype(np.intp)]
     return np.column_stack((x[m], y[m])).astype(np.float64)
+
+
+def warm_up() -> None:
+    """Compile `extract_features`' kernels (`lane_marker_kernels`), or load them from numba's cache, as
+    `grid.warm_up` does the grid's: the first revolution in a process otherwise pays for it, which a
+    real-time module pays in its start instead. Four rings of road with a painted line and a curb,
+    enough points for the plane's RANSAC: every kernel runs."""
+    k = np.arange(1600)
+    ring = k // 400
+    azimuth = (k % 400) * (2.0 * math.pi / 400)
+    x, y = (5.0 + ring) * np.cos(azimuth), (5.0 + ring) * np.sin(azimuth)
+    z = np.where(y > 3.0, -1.58, -1.73)
+    xyz = np.stack((x, y, z), axis=1).astype(np.float32)
+    reflectance = np.where(np.abs(y - 1.0) < 0.1, 0.8, 0.3).astype(np.float32)
+    scan = Scan(xyz, reflectance, ring.astype(np.int16), sensor_height_m=1.73)
+    extract_features(scan, ground_mask=np.ones(len(scan), bool))
 
 
 @dataclass(frozen=True)

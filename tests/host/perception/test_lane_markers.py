@@ -3,11 +3,14 @@ accumulation into the vehicle-centred marker image, and what the real KITTI scan
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from lane_marker_scans import lateral_of, road_scan
 from shared_data import shared_data_dir
 
@@ -15,8 +18,11 @@ from bywire.host.lateral import VehiclePose
 from bywire.host.perception.lane_markers import (
     GridParams,
     LaneMarkerMap,
+    MarkerFeatures,
     MarkerGrid,
+    MarkerParams,
     extract_features,
+    extract_features_reference,
     marker_png,
 )
 from bywire.host.perception.radon import find_lines
@@ -200,3 +206,60 @@ def test_kitti_markers_run_along_the_road() -> None:
     left = [ln for ln in found.lines if -8.0 <= np.sign(math.sin(found.normal_rad)) * ln.offset_m < 0.0]
     right = [ln for ln in found.lines if 0.0 < np.sign(math.sin(found.normal_rad)) * ln.offset_m <= 8.0]
     assert left and right
+
+
+def assert_same_features(got: MarkerFeatures, want: MarkerFeatures) -> None:
+    np.testing.assert_array_equal(got.paint_xy_m, want.paint_xy_m)
+    np.testing.assert_array_equal(got.curb_xy_m, want.curb_xy_m)
+    np.testing.assert_array_equal(got.ground, want.ground)
+    assert got.plane == want.plane
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    road_angle_deg=st.floats(-180.0, 180.0),
+    curb=st.sampled_from([None, -3.0, 2.5]),
+    interleaved=st.booleans(),
+    masked=st.booleans(),
+    contrast=st.sampled_from([0.05, 0.15]),
+    neighbours=st.integers(0, 3),
+    missing=st.integers(0, 3),
+)
+def test_the_compiled_features_equal_the_numpy_ones(
+    seed: int,
+    road_angle_deg: float,
+    curb: float | None,
+    interleaved: bool,
+    masked: bool,
+    contrast: float,
+    neighbours: int,
+    missing: int,
+) -> None:
+    """Bit for bit, on roads with noise in height and reflectance and points dropped (the scan's gaps)."""
+    rng = np.random.default_rng(seed)
+    scan = road_scan(
+        road_angle_rad=math.radians(road_angle_deg),
+        curb_lateral_m=curb,
+        n_azimuth=int(rng.integers(300, 1500)),
+        beam_gain_spread=float(rng.uniform(0.0, 1.0)),
+        interleaved=interleaved,
+        seed=seed,
+    )
+    keep = rng.random(len(scan)) > rng.uniform(0.0, 0.2)
+    xyz = scan.xyz_m[keep] + rng.normal(0.0, 0.02, (int(keep.sum()), 3)).astype(np.float32)
+    refl = np.clip(scan.reflectance[keep] + rng.normal(0.0, 0.05, xyz.shape[0]), 0.0, 1.0)
+    scan = dataclasses.replace(scan, xyz_m=xyz, reflectance=refl.astype(np.float32), beam=scan.beam[keep])
+    params = MarkerParams(paint_contrast=contrast, paint_max_neighbours=neighbours, curb_max_missing=missing)
+    mask = rng.random(len(scan)) < 0.9 if masked else None
+    assert_same_features(extract_features(scan, params, mask), extract_features_reference(scan, params, mask))
+
+
+def test_the_compiled_features_equal_the_numpy_ones_on_kitti() -> None:
+    rng = np.random.default_rng(7)
+    for scan in kitti_scans():
+        assert_same_features(extract_features(scan), extract_features_reference(scan))
+        mask = rng.random(len(scan)) < 0.9
+        assert_same_features(
+            extract_features(scan, ground_mask=mask), extract_features_reference(scan, ground_mask=mask)
+        )

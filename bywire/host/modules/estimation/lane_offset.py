@@ -40,6 +40,7 @@ from bywire.host.modules.perception_messages import (
 )
 from bywire.host.modules.planning.urban_behaviour import extrapolate
 from bywire.host.modules.urban_messages import URBAN_POSE, UrbanPose
+from bywire.host.perception.lane_markers import warm_up
 from bywire.host.perception.lane_offset import LaneOffsetEstimator
 from bywire.host.roadnet.graph import DEFAULT_LANE_WIDTH_M, EdgeKind
 from bywire.host.runtime.module import Module, ModuleContext
@@ -105,6 +106,9 @@ class LaneOffsetModule(Module):
             width,
             expected_markings(self.lane_index, match.edge, match.s_m, width),
         )
+
+    def start(self, ctx: ModuleContext) -> None:
+        warm_up()  # the marker features' compiled kernels, before the first release
 
     def step(self, ctx: ModuleContext) -> None:
         now = ctx.now_s
