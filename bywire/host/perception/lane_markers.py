@@ -54,6 +54,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import lane_marker_kernels
+from .radon import RadonSpectrum
 from .scan import HDL64E_BEAMS, Scan
 
 __all__ = [
@@ -626,6 +627,7 @@ def warm_up() -> None:
     reflectance = np.where(np.abs(y - 1.0) < 0.1, 0.8, 0.3).astype(np.float32)
     scan = Scan(xyz, reflectance, ring.astype(np.int16), sensor_height_m=1.73)
     extract_features(scan, ground_mask=np.ones(len(scan), bool))
+    RadonSpectrum(np.eye(8, dtype=np.float32)).energy([0.0])  # and the Radon's slices (radon_kernels)
 
 
 @dataclass(frozen=True)
