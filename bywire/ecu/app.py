@@ -520,6 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     import signal
 
     from bywire.clock import WallClock
+    from bywire.ecu.boot_reporter import BootStatusWriter
     from bywire.ecu.executive import CyclicExecutive
     from bywire.ecu.health import FIRST_REPORT_CYCLES, SAMPLE_CYCLES, BootHealth
     from bywire.ecu.store import os_error_text, report_boot
@@ -583,31 +584,40 @@ def main(argv: list[str] | None = None) -> int:
     report_failed = False
     health = BootHealth()
 
+    def report_error(exc: OSError) -> None:
+        # The ECU keeps running: without its reports a trial image is not confirmed (and the
+        # supervisor rolls it back), but a confirmed one must not stop over a status file.
+        nonlocal report_failed
+        if not report_failed:
+            report_failed = True
+            print(f"ecu: !!! cannot write the boot status: {os_error_text(exc)}", flush=True)
+
+    store = args.store
+    reporter = (
+        BootStatusWriter(lambda status: report_boot(store, **status), report_error)
+        if store is not None
+        else None
+    )
+
     def progress(cycles: int) -> None:
         # Called after every 1 ms cycle: returns at once on all but one cycle in SAMPLE_CYCLES.
-        nonlocal booted, report_failed
+        nonlocal booted
         if cycles < FIRST_REPORT_CYCLES or (booted and cycles % SAMPLE_CYCLES):
             return
         now = clock.now()
         faults = app.internal_fault_events
         health.sample(now, app.node.host_alive(now), faults)
         state = app.core.safety.state
-        if args.store is not None and health.report_due(now):
-            try:
-                report_boot(
-                    args.store,
-                    state.name,
-                    healthy_s=health.healthy_s,
-                    host_link_up=health.host_link_up,
-                    internal_faults=health.internal_faults,
-                    unsigned_store=args.unsigned_store,
-                )
-            except OSError as exc:
-                # The ECU keeps running: without its reports a trial image is not confirmed (and
-                # the supervisor rolls it back), but a confirmed one must not stop over a status file.
-                if not report_failed:
-                    report_failed = True
-                    print(f"ecu: !!! cannot write the boot status: {os_error_text(exc)}", flush=True)
+        if reporter is not None and health.report_due(now):
+            reporter.submit(  # written beside the loop (ecu.boot_reporter)
+                {
+                    "state_name": state.name,
+                    "healthy_s": health.healthy_s,
+                    "host_link_up": health.host_link_up,
+                    "internal_faults": health.internal_faults,
+                    "unsigned_store": args.unsigned_store,
+                }
+            )
         if not booted:
             booted = True
             print(f"ecu: running, state {state.name}", flush=True)
@@ -617,6 +627,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         executive.run(stop=lambda: stopping or clock.now() >= end, progress=progress)
     finally:
+        if reporter is not None:
+            reporter.close()
         snapshot: dict[str, Any] = stats.snapshot()
         snapshot["scheduler"] = scheduler
         snapshot["final_state"] = app.core.safety.state.name

@@ -12,7 +12,8 @@ trip: `EcuApp.internal_fault_events`) has happened since the last time the count
 
 Sampled every `SAMPLE_CYCLES` cycles (100 ms at 1 kHz; a link drop shorter than that can go
 unnoticed, which shortens nothing by more than one sample), reported at most once per
-`REPORT_PERIOD_S` (the only file I/O the 1 kHz loop does). Pure: time comes in as arguments.
+`REPORT_PERIOD_S` (written by a thread beside the 1 kHz loop: `ecu.boot_reporter`). Pure: time comes
+in as arguments.
 """
 
 from __future__ import annotations

@@ -31,7 +31,8 @@ fsync of the directory), so a crash or power loss leaves each file either old or
 A write whose rename happened but whose directory fsync failed raises `DirSyncError`: the new file
 is the one every reader sees, but a power cut could still bring the old one back (callers report
 exactly that). The boot status is volatile (replaced, not fsynced): it only matters to the running
-supervisor, and an fsync a second inside the 1 kHz loop would cost milliseconds.
+supervisor, and an fsync a second would cost milliseconds of the disk the whole machine shares
+(it is written beside the 1 kHz loop, never in it: `ecu.boot_reporter`).
 
 A slot is usable only when image.pyz hashes to its manifest's sha256 and, unless the store allows
 unsigned firmware, its signature verifies with a key in trust.json; that is checked on every boot,
@@ -749,8 +750,9 @@ def report_boot(
     ("READY", or "OFF" without calibration) and health.
 
     The boot supervisor matches the pid against its child, so a stale file from an earlier run
-    can never confirm a new image. Not fsynced (see the module docstring): called from the 1 kHz
-    loop; an OSError is the caller's to handle.
+    can never confirm a new image. Not fsynced (see the module docstring): called about once a
+    second by the writer thread beside the 1 kHz loop (`ecu.boot_reporter`); an OSError is the
+    caller's to handle.
     """
     if isinstance(state_name, EcuState):
         state = state_name
