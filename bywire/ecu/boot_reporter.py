@@ -4,8 +4,10 @@ that can block it).
 The boot supervisor (`ecu.boot`) learns the running image's state and health from a file that the
 image replaces about once a second (`store.report_boot`). Written from the loop itself, its system
 calls (a temporary file, a write, a rename) ran at the loop's real-time priority inside a cycle and
-held it for as long as the file system took: on a kernel that does not preempt a system call, one
-such report stalled a cycle by 25 ms, a LOOP_STALL that stopped the car in a HIL run. The loop now
+held it for as long as the file system took. Measured on the 2-core VM (2026-11-27), one report
+takes 0.75 ms median and 1.5 ms at most on a quiet disk (most of a 1 ms cycle), and 4 ms median,
+44 ms at most beside a process writing to the disk; a 25 ms stall of the loop, a LOOP_STALL that
+stopped the car, was seen in a HIL run. The loop now
 hands the newest status to a thread of normal priority and goes on at once. A status not yet
 written when a newer one comes is replaced by it: the supervisor only ever wants the newest.
 """
