@@ -10,7 +10,9 @@ parked car, and `rndf_offset` both ways."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -201,3 +203,27 @@ def test_a_lidar_recording_replays_exactly(tmp_path) -> None:  # type: ignore[no
     }  # fmt: skip
     counts = {summary.channels[k].topic: n for k, n in summary.statistics.channel_message_counts.items()}
     assert counts["/scene/scan"] == counts["/scene/obstacles"] >= 20
+
+
+@pytest.mark.slow  # it compiles every perception kernel from nothing: about 20 s
+def test_a_lidar_run_on_a_machine_that_never_compiled_the_kernels_starts_cleanly(tmp_path: Path) -> None:
+    """Numba's cache empty, as after a fresh install: the kernels are compiled before the run, not in
+    a module's start (where a start of seconds is judged hung and the lane offset was restarted until
+    its policy stopped the host)."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "run.json"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    argv = ["hil", "run", "rndf_offset", "--mode", "sil", "--perception", "lidar", "--set", "duration_s=4"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "bywire", *argv, "--json", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    doc = json.loads(out.read_text())
+    assert doc["host_runtime"]["events"] == [], proc.stdout + proc.stderr
+    assert any((tmp_path / "numba").rglob("*.nbi")), "the kernels were not compiled into the empty cache"
