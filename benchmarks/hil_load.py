@@ -186,6 +186,7 @@ class Tally:
     ecu_lateness_p99_ms: list[float] = field(default_factory=list)
     ecu_faults: dict[str, int] = field(default_factory=dict)
     stops: list[dict[str, Any]] = field(default_factory=list)
+    machine_late_ms: list[float] = field(default_factory=list)  # per run: the CPU probes' worst wake
 
     def add(self, run: dict[str, Any]) -> None:
         self.runs += 1
@@ -211,6 +212,8 @@ class Tally:
             self.ecu_lateness_p99_ms.append(run["ecu_lateness_us"]["p99"] / 1e3)
         for f in run["faults"]:
             self.ecu_faults[f] = self.ecu_faults.get(f, 0) + 1
+        if run.get("machine_late_max_ms") is not None:
+            self.machine_late_ms.append(run["machine_late_max_ms"])
 
     def doc(self) -> dict[str, Any]:
         def gaps(h: GapHistogram) -> dict[str, Any]:
@@ -232,6 +235,8 @@ class Tally:
                 "max": round(max(self.ecu_lateness_ms, default=0.0), 3),
             },
             "ecu_faults": dict(sorted(self.ecu_faults.items())),
+            # bywire.hil.machine_probe: how long a CPU was withheld from SCHED_FIFO 99, worst run
+            "machine_late_max_ms": round(max(self.machine_late_ms, default=0.0), 3),
             "stops": self.stops,
         }
 
@@ -277,6 +282,7 @@ def judge_run(result: dict[str, Any], report: Path, duration_s: float = float("i
         "rhythm": rhythm,
         "ecu_heard_heartbeat": _heard(loop),
         "ecu_lateness_us": loop.get("lateness_us"),
+        "machine_late_max_ms": result.get("metrics", {}).get("machine_late_max_ms"),
     }
 
 
@@ -370,7 +376,7 @@ def print_table(title: str, doc: dict[str, Any]) -> None:
     print(f"\n{title}")
     print(
         f"{'scenario':<20} {'runs':>4} {'pass':>4} {'stops':>5}  {'host link gap ms p50/p99/p99.9/max':>36}"
-        f"  {'hb heard max':>12}  {'plant step p99/max':>18}  {'ECU late max':>12}"
+        f"  {'hb heard max':>12}  {'plant step p99/max':>18}  {'ECU late max':>12}  {'CPU stall max':>13}"
     )
     rows = [*doc["scenarios"].items(), ("all", doc)]
     for name, s in rows:
@@ -379,7 +385,7 @@ def print_table(title: str, doc: dict[str, Any]) -> None:
             f"{name:<20} {s['runs']:>4} {s['passed']:>4} {s['spurious_stops']:>5}  "
             f"{h['p50']:>8.1f} {h['p99']:>8.1f} {h['p999']:>8.1f} {h['max']:>8.1f}  "
             f"{s['heartbeat_gap_max_ms']:>12.1f}  {p['p99']:>8.1f} {p['max']:>8.1f}  "
-            f"{s['ecu_lateness_ms']['max']:>12.2f}"
+            f"{s['ecu_lateness_ms']['max']:>12.2f}  {s['machine_late_max_ms']:>13.2f}"
         )
     print(f"machine floor (bare SCHED_FIFO 1 kHz loop, lateness ms): {doc['machine_floor_lateness_ms']}")
     if doc["ecu_faults"]:

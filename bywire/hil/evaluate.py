@@ -276,6 +276,9 @@ def evaluate(
             rhythm = stalls.get(process, {}).get("rhythm_ms", {}).get(channel)
             if rhythm is not None:
                 metrics[metric] = rhythm["max"]
+    machine = extra.get("machine")  # HIL: bywire.hil.machine_probe, the machine's own stalls
+    if machine is not None:
+        metrics["machine_late_max_ms"] = machine["late_ms"]["max"]
     heard = (extra.get("ecu_loop") or {}).get("host_link", {}).get("heartbeat_gap_ms")
     if heard is not None:
         metrics["heartbeat_gap_at_ecu_max_ms"] = heard["max"]  # what the ECU's watchdog judged

@@ -233,8 +233,10 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
         mark = "PASS" if check["passed"] else "FAIL"
         print(f"  {mark}  {check['name']}: {check['value']} ({check['op']} {check['limit']})", file=out)
     for c in result.get("watchdog_culprits", []):
+        machine = c.get("machine_stall_ms")
+        also = f"; the machine itself stalled {machine} ms (SCHED_FIFO 99 probe late)" if machine else ""
         print(
-            f"  watchdog {c['fault']} at {c['at_s']:.3f} s: fell behind: {', '.join(c['fell_behind'])}",
+            f"  watchdog {c['fault']} at {c['at_s']:.3f} s: fell behind: {', '.join(c['fell_behind'])}{also}",
             file=out,
         )
         for process, recs in c["stalls"].items():
@@ -271,6 +273,10 @@ def rhythm_line(result: dict[str, Any]) -> str:
     heard = result["metrics"].get("ecu_loop", {}).get("host_link", {}).get("heartbeat_gap_ms")
     if heard and heard.get("count"):
         parts.append(f"heartbeat at the ECU {heard['p99']:.1f}/{heard['max']:.1f}")
+    machine = result["metrics"].get("machine")
+    if machine and machine.get("wakes"):
+        late = machine["late_ms"]
+        parts.append(f"machine (FIFO 99 probe late) {late['p99']:.1f}/{late['max']:.1f}")
     return "; ".join(parts)
 
 

@@ -35,6 +35,7 @@ from typing import IO, Any
 
 import can
 
+from bywire.hil.machine_probe import merge_summaries
 from bywire.hil.recording import Recorder, is_mcap, merge_recordings, wall_run_clock
 from bywire.hil.scenario import Scenario
 from bywire.hil.service_tool import ServiceTool
@@ -129,6 +130,7 @@ class Child:
             return ""
 
 
+MACHINE_PROBE_FILE = "machine_probe_cpu{cpu}.json"  # bywire.hil.machine_probe: did a CPU itself stall?
 HOST_TOPICS_PART = "host_topics.mcap"  # the host process records its store here
 FRAMES_PART = "frames.mcap"  # the runner records the buses here; both are merged into --record
 
@@ -235,6 +237,9 @@ def run_hil(
     result_extra: dict[str, Any] = {"host_link": host_link}
     service: ServiceTool | None = None
     service_bus: can.BusABC | None = None
+    # First, so that they watch the start-up too; stopped last (children stop in reverse order).
+    probes = [_machine_probe(run_dir, cpu) for cpu in sorted(os.sched_getaffinity(0))]
+    children[:0] = probes
     try:
         wait_for_port("127.0.0.1", vehicle_port, 30.0)
         if host_link == "remote":
@@ -324,7 +329,7 @@ def run_hil(
         )
         children.append(host)
         deadline = time.monotonic() + READY_TIMEOUT_S
-        for child in (ecu, plant, host):
+        for child in (*probes, ecu, plant, host):
             while not child.ready.wait(0.2):
                 if child.proc.poll() is not None:
                     raise RuntimeError(f"{child.name} exited during start-up:\n{child.tail()}")
@@ -418,9 +423,28 @@ def run_hil(
         process: {"count": len(summary.get("stalls", [])) + summary.get("dropped", 0), **summary}
         for process, summary in stalls.items()
     }
+    machine = _machine_probe_summary(sorted(run_dir.glob(MACHINE_PROBE_FILE.format(cpu="*"))), t0)
+    if machine is not None:
+        result_extra["machine"] = machine
     # Which process fell behind when a watchdog fired (run time: the host trace's clock).
-    result_extra["watchdog_culprits"] = culprits(host_trace, stalls, t0, scenario.duration_s)
+    result_extra["watchdog_culprits"] = culprits(host_trace, stalls, t0, scenario.duration_s, machine)
     return RunResult(plant=plant_trace, host=host_trace, extra=result_extra, traffic=traffic)
+
+
+def _machine_probe(run_dir: Path, cpu: int) -> Child:
+    out = run_dir / MACHINE_PROBE_FILE.format(cpu=cpu)
+    argv = [sys.executable, "-m", "bywire.hil.machine_probe", "--cpu", str(cpu), "--out", str(out)]
+    return Child(f"machine-probe-{cpu}", argv, run_dir / f"machine-probe-{cpu}.log", False)
+
+
+def _machine_probe_summary(paths: list[Path], t0: float) -> dict[str, Any] | None:
+    """The machine probes' summary with their stalls in run time (seconds after t0), or None when no
+    probe wrote anything (none could start, or they were killed)."""
+    docs = []
+    for path in paths:
+        with contextlib.suppress(OSError, ValueError):
+            docs.append(json.loads(path.read_text(encoding="utf-8")))
+    return merge_summaries(docs, t0) if docs else None
 
 
 def free_udp_port() -> int:

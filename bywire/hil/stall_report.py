@@ -4,7 +4,8 @@ The ECU's watchdog faults (host heartbeat, request, vehicle frames, its own loop
 went silent, not which or why. The host and the plant record their stalls (`bywire.stall_recorder`:
 the silent channel, the threads' states, CPU and stacks); this joins them: for each watchdog fault the
 ECU raised when it stopped an engaged car, as the host saw its status (the host trace's `ecu_state` and
-`ecu_faults`), the stalls of either process that were open in the `LOOKBACK_S` before it.
+`ecu_faults`), the stalls of either process that were open in the `LOOKBACK_S` before it, and the
+stalls of the machine itself in that time (`machine_probe`: when no process could run at all).
 """
 
 from __future__ import annotations
@@ -57,14 +58,27 @@ def brief(record: dict[str, Any], t0: float) -> dict[str, Any]:
     }
 
 
+def machine_stall_ms(machine: dict[str, Any], t_fault: float) -> float:
+    """The longest stall of the machine itself (`machine_probe`, stalls in run time) open in the lookback
+    before `t_fault`: for that long not even the highest real-time priority could run; 0.0 if none."""
+    worst = 0.0
+    for stall in machine.get("stalls", []):
+        start = stall["from_s"]
+        if start <= t_fault and start + stall["late_ms"] / 1e3 >= t_fault - LOOKBACK_S:
+            worst = max(worst, float(stall["late_ms"]))
+    return worst
+
+
 def culprits(
     host_trace: dict[str, np.ndarray] | None,
     stalls: dict[str, dict[str, Any]],
     t0: float,
     until_s: float = float("inf"),
+    machine: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """For each watchdog stop before `until_s` (the scenario's end, when the plant stops sending): when,
-    and the stalls of each process open in the lookback before it."""
+    the stalls of each process open in the lookback before it, and (given the machine probe's summary)
+    `machine_stall_ms`, how long the machine itself stalled in that lookback."""
     if host_trace is None:
         return []
     out = []
@@ -79,5 +93,9 @@ def culprits(
                 if start <= t_fault and end >= t_fault - LOOKBACK_S:
                     found.setdefault(process, []).append(brief(rec, t0))
         fell_behind = sorted(found) or ["none recorded (the ECU's own view: see its loop statistics)"]
-        out.append({"fault": name, "at_s": round(t_fault, 3), "fell_behind": fell_behind, "stalls": found})
+        stop: dict[str, Any] = {"fault": name, "at_s": round(t_fault, 3), "fell_behind": fell_behind}
+        stop["stalls"] = found
+        if machine is not None:
+            stop["machine_stall_ms"] = machine_stall_ms(machine, t_fault)
+        out.append(stop)
     return out

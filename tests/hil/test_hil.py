@@ -6,7 +6,6 @@ never timing figures (the machine is shared and noisy; timing lives in `bywire b
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import subprocess
@@ -14,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from hil_process_run import hil_command
 
 pytestmark = pytest.mark.hil
 
@@ -24,50 +24,11 @@ def _bywire(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess[s
     )
 
 
-# A run during which the machine itself stalled (the VM's vCPU taken away for tens of ms, seen
-# here up to 86 ms) proves nothing about the ECU: its watchdogs rightly stop the car. Such a run is
-# repeated once, and only when the stall is visible in the run's own records.
-MACHINE_STALL_S = 0.040
-
-
-def _machine_stalled(report: Path, doc: dict) -> bool:
-    loop = doc.get("metrics", {}).get("ecu_loop") or {}
-    if loop.get("lateness_us", {}).get("max", 0.0) > MACHINE_STALL_S * 1e6:
-        return True
-    trace = report / "plant.csv"
-    if not trace.exists():
-        return False
-    times = [float(line.split(",", 1)[0]) for line in trace.read_text().splitlines()[1:] if line]
-    return any(b - a > MACHINE_STALL_S for a, b in itertools.pairwise(times))
-
-
 def _hil_run(
     tmp_path: Path, scenario: str, *extra: str
 ) -> tuple[subprocess.CompletedProcess[str], dict, Path]:
-    """`bywire hil run SCENARIO --mode hil` with its JSON and report; once more after a machine stall."""
-    for attempt in (1, 2):
-        report = tmp_path / f"report{attempt}"
-        out = report / "result.json"
-        proc = _bywire(
-            "hil",
-            "run",
-            scenario,
-            "--mode",
-            "hil",
-            "--json",
-            str(out),
-            "--report",
-            str(report),
-            "--quiet",
-            *extra,
-        )
-        doc = json.loads(out.read_text()) if out.exists() else {}
-        if proc.returncode == 0 or attempt == 2 or not _machine_stalled(report, doc):
-            return proc, doc, report
-        print(
-            f"{scenario}: the machine stalled for more than {MACHINE_STALL_S * 1000:.0f} ms; repeating once"
-        )
-    raise AssertionError("unreachable")
+    """`bywire hil run SCENARIO --mode hil` with its JSON and report; again if the machine spoiled it."""
+    return hil_command([scenario, "--mode", "hil", "--quiet", *extra], tmp_path / "report", 240.0, scenario)
 
 
 def test_accel_steps_in_three_processes(tmp_path: Path) -> None:
@@ -207,14 +168,6 @@ def test_service_tool_calibrates_a_running_ecu_over_sdo_and_it_is_stored(tmp_pat
         ecu.terminate()
         ecu.wait(20)
         stop_bus_server(server, thread)
-
-
-def test_machine_stall_detection_reads_the_run_records(tmp_path: Path) -> None:
-    (tmp_path / "plant.csv").write_text("t_s,speed_mps\n0.00,1\n0.01,1\n0.02,1\n")
-    assert not _machine_stalled(tmp_path, {"metrics": {"ecu_loop": {"lateness_us": {"max": 900.0}}}})
-    assert _machine_stalled(tmp_path, {"metrics": {"ecu_loop": {"lateness_us": {"max": 86_000.0}}}})
-    (tmp_path / "plant.csv").write_text("t_s,speed_mps\n0.00,1\n0.01,1\n0.09,1\n")
-    assert _machine_stalled(tmp_path, {})
 
 
 SUPERVISOR_CASES = {
