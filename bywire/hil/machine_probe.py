@@ -111,7 +111,9 @@ class MachineProbe:
         else:
             self.dropped += 1
 
-    def summary(self, realtime: str, steal_now_s: float | None, cpu: int | None = None) -> dict[str, Any]:
+    def summary(
+        self, realtime: str, steal_now_s: float | None, cpu: int | None = None, fifo: bool = True
+    ) -> dict[str, Any]:
         """The JSON the probe writes: its set-up, its lateness (`GapHistogram` quantiles), and every stall
         of `stall_ms` or more (`from_s`: when the late wake was due, CLOCK_MONOTONIC)."""
         steal = None
@@ -119,6 +121,7 @@ class MachineProbe:
             steal = round((steal_now_s - self._steal_at_start_s) * 1e3, 1)
         return {
             "cpu": cpu,
+            "fifo": fifo,
             "priority": PRIORITY,
             "period_ms": self.period_s * 1e3,
             "stall_threshold_ms": self.stall_ms,
@@ -133,15 +136,23 @@ class MachineProbe:
 
 def merge_summaries(docs: list[dict[str, Any]], t0: float) -> dict[str, Any]:
     """One summary of the CPUs' probes: the lateness over all wakes, each CPU's own (`cpus`), and every
-    stall with its `cpu`, in run time (`from_s` seconds after `t0`), in time order."""
+    stall with its `cpu`, in run time (`from_s` seconds after `t0`), in time order. A probe the system
+    refused SCHED_FIFO (no root, no CAP_SYS_NICE) waited behind ordinary processes, so its late wakes say
+    nothing about the machine: its stalls are left out, and `cpus` says why."""
     lateness = GapHistogram(bin_ms=0.05)
     stalls: list[dict[str, Any]] = []
     cpus: dict[str, Any] = {}
     for doc in docs:
         lateness.merge(GapHistogram.from_json(doc["late_ms"]))
-        stalls += [{**s, "from_s": round(s["from_s"] - t0, 3), "cpu": doc["cpu"]} for s in doc["stalls"]]
+        if doc.get("fifo", True):
+            stalls += [{**s, "from_s": round(s["from_s"] - t0, 3), "cpu": doc["cpu"]} for s in doc["stalls"]]
         late = {k: doc["late_ms"][k] for k in ("p50", "p99", "p999", "max")}
-        cpus[str(doc["cpu"])] = {"realtime": doc["realtime"], "wakes": doc["wakes"], "late_ms": late}
+        cpus[str(doc["cpu"])] = {
+            "realtime": doc["realtime"],
+            "stalls_kept": bool(doc.get("fifo", True)),
+            "wakes": doc["wakes"],
+            "late_ms": late,
+        }
     return {
         "priority": PRIORITY,
         "stall_threshold_ms": docs[0]["stall_threshold_ms"] if docs else STALL_MS,
@@ -182,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         probe.woke(due, now)
         # The next instant on the grid after now: a stall is one late wake, not a burst of catch-ups.
         due += probe.period_s * max(1, int((now - due) / probe.period_s) + 1)
-    summary = probe.summary(report.summary(), _read_steal_s(), args.cpu)
+    summary = probe.summary(report.summary(), _read_steal_s(), args.cpu, report.sched_fifo.applied)
     args.out.write_text(json.dumps(summary), encoding="utf-8")
     return 0
 

@@ -85,6 +85,9 @@ def test_the_cpus_probes_merge_into_one_summary_in_run_time() -> None:
         docs.append(probe.summary(f"SCHED_FIFO 99: yes; CPU affinity {cpu}: yes", None, cpu))
     doc = merge_summaries(docs, t0=100.0)
     assert [(s["cpu"], s["from_s"], s["late_ms"]) for s in doc["stalls"]] == [(1, 0.1, 12.0), (0, 0.5, 30.0)]
+    # A probe refused SCHED_FIFO waited behind ordinary processes: its late wakes are not the machine's.
+    docs[1]["fifo"] = False
+    assert [s["cpu"] for s in merge_summaries(docs, t0=100.0)["stalls"]] == [0]
     assert doc["wakes"] == 4 and doc["late_ms"]["max"] == pytest.approx(30.0) and doc["steal_ms"] is None
     assert doc["cpus"]["1"]["late_ms"]["max"] == pytest.approx(12.0) and doc["cpus"]["0"]["wakes"] == 2
     json.dumps(doc)
