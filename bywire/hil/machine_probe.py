@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from bywire.clock import WallClock
+from bywire.process_util import StopFlag
 from bywire.realtime import apply_realtime
 from bywire.rhythm import GapHistogram
 
@@ -171,21 +171,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cpu", type=int, default=None, help="the CPU to probe (default: any, free to move)")
     parser.add_argument("--period-ms", type=float, default=PERIOD_S * 1e3)
     args = parser.parse_args(argv)
-    stop = False
-
-    def _stop(signum: int, frame: object) -> None:
-        nonlocal stop
-        stop = True
-
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
+    stop = StopFlag()
     report = apply_realtime(PRIORITY, cpu=args.cpu)
     probe = MachineProbe(period_s=args.period_ms / 1e3)
     clock = WallClock()
     print("ready", flush=True)
     probe.start(_read_steal_s())
     due = clock.now() + probe.period_s
-    while not stop:
+    while not stop():
         clock.sleep_until(due)
         now = clock.now()
         if now < due:  # a signal woke us early
