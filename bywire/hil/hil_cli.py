@@ -234,7 +234,7 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
         print(f"  {mark}  {check['name']}: {check['value']} ({check['op']} {check['limit']})", file=out)
     for c in result.get("watchdog_culprits", []):
         machine = c.get("machine_stall_ms")
-        also = f"; the machine itself stalled {machine} ms (SCHED_FIFO 99 probe late)" if machine else ""
+        also = f"; a CPU was withheld {machine} ms (its SCHED_FIFO 99 probe woke late)" if machine else ""
         print(
             f"  watchdog {c['fault']} at {c['at_s']:.3f} s: fell behind: {', '.join(c['fell_behind'])}{also}",
             file=out,
