@@ -39,12 +39,14 @@ from typing import TypeVar
 import numpy as np
 
 from . import reeds_shepp
-from .cspace import CSpace
+from . import search_kernel as _kernel
+from .cspace import CSpace, Footprint, build_cspace
+from .grid_map import GridMap
 from .heuristics import HeuristicField
 from .primitives import MotionPrimitives, build_primitives
 from .reeds_shepp_kernel import path_collides
 
-__all__ = ["Plan", "PlannerParams", "plan", "run_to_end", "search"]
+__all__ = ["Plan", "PlannerParams", "plan", "run_to_end", "search", "warm_up"]
 
 Pose = tuple[float, float, float]
 T = TypeVar("T")
@@ -170,13 +172,16 @@ def plan(
     keep_tree: bool = False,
     primitives: MotionPrimitives | None = None,
     heuristic_field: HeuristicField | None = None,
+    compiled: bool = True,
 ) -> Plan:
     """Search a path from `start` to `goal` (poses of the rear axle's centre) on `cspace`.
 
-    `heuristic`: "both" (the paper's maximum), "kinematic", "obstacle" or "none" (Dijkstra)."""
+    `heuristic`: "both" (the paper's maximum), "kinematic", "obstacle" or "none" (Dijkstra);
+    `compiled`: see `search`."""
     return run_to_end(
         search(cspace, start, goal, params, heuristic=heuristic, exhaustive=exhaustive,
-               keep_tree=keep_tree, primitives=primitives, heuristic_field=heuristic_field)
+               keep_tree=keep_tree, primitives=primitives, heuristic_field=heuristic_field,
+               compiled=compiled)
     )  # fmt: skip
 
 
@@ -202,10 +207,14 @@ def search(
     primitives: MotionPrimitives | None = None,
     heuristic_field: HeuristicField | None = None,
     yield_every: int = 500,
+    compiled: bool = True,
 ) -> Generator[int, None, Plan]:
     """`plan` in steps: yields the expansions so far every `yield_every` expansions and returns the
     `Plan` (a caller with a cycle to keep, such as the behaviour in lockstep SIL, runs a few steps per
-    cycle: the result depends on the expansions, never on the clock)."""
+    cycle: the result depends on the expansions, never on the clock).
+
+    `compiled`: the loop in `search_kernel` (numba); False: the same loop in Python, the reference the
+    compiled one is held equal to (the same expansions, the same path to the last bit)."""
     p = params or PlannerParams()
     t0 = time.perf_counter()
     res = cspace.grid.resolution_m
@@ -214,28 +223,75 @@ def search(
     for name, pose in (("start", start), ("goal", goal)):
         if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
             raise ValueError(f"plan: {name} {pose} must be three finite numbers (x_m, y_m, heading_rad)")
-    empty = np.zeros((0, 3))
-
-    def fail(reason: str, expansions: int = 0) -> Plan:
-        return Plan(
-            False, empty, np.zeros(0), math.inf, 0.0, 0, expansions, 1e3 * (time.perf_counter() - t0), reason
-        )
-
     for name, pose in (("start", start), ("goal", goal)):
         if bool(cspace.collides(np.array([pose[0]]), np.array([pose[1]]), np.array([pose[2]]))[0]):
-            return fail(f"the {name} pose {tuple(round(v, 3) for v in pose)} collides (or is off the map)")
+            return _fail(
+                t0, f"the {name} pose {tuple(round(v, 3) for v in pose)} collides (or is off the map)"
+            )
     step = p.sample_step_m or 0.5 * res
     prims = primitives or build_primitives(p.turn_radius_m, p.arc_m, p.n_steer, step, reverse=p.reverse)
     hf = heuristic_field or HeuristicField(cspace, goal, p.turn_radius_m, p.rs_range_m)
     use_obstacle = heuristic in ("both", "obstacle")
     use_kinematic = heuristic in ("both", "kinematic")
     if use_obstacle and not math.isfinite(float(hf.obstacle(start[0], start[1]))):
-        return fail("the goal cannot be reached from the start through the free space")
-    xy_bin = p.xy_bin_m
-    n_h = p.closed_headings
+        return _fail(t0, "the goal cannot be reached from the start through the free space")
     w = p.heuristic_weight
     if not (math.isfinite(w) and w >= 1.0):
         raise ValueError(f"plan: heuristic_weight = {w} must be finite and >= 1")
+    if yield_every < 1:
+        raise ValueError(f"plan: yield_every = {yield_every} must be >= 1")
+    setup = _Setup(cspace, start, goal, p, prims, hf, step, use_obstacle, use_kinematic, exhaustive,
+                   keep_tree, yield_every, t0)  # fmt: skip
+    if compiled:
+        return (yield from _search_compiled(setup))
+    return (yield from _search_reference(setup))
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What both searches start from (`search` checked it)."""
+
+    cspace: CSpace
+    start: Pose
+    goal: Pose
+    p: PlannerParams
+    prims: MotionPrimitives
+    hf: HeuristicField
+    step_m: float
+    use_obstacle: bool
+    use_kinematic: bool
+    exhaustive: bool
+    keep_tree: bool
+    yield_every: int
+    t0: float
+
+
+def _fail(t0: float, reason: str, expansions: int = 0) -> Plan:
+    return Plan(
+        False,
+        np.zeros((0, 3)),
+        np.zeros(0),
+        math.inf,
+        0.0,
+        0,
+        expansions,
+        1e3 * (time.perf_counter() - t0),
+        reason,
+    )
+
+
+def _search_reference(su: _Setup) -> Generator[int, None, Plan]:
+    """The search loop in Python (see the module docstring)."""
+    cspace, start, goal, p, prims, hf = su.cspace, su.start, su.goal, su.p, su.prims, su.hf
+    step, use_obstacle, use_kinematic, exhaustive = (
+        su.step_m,
+        su.use_obstacle,
+        su.use_kinematic,
+        su.exhaustive,
+    )
+    xy_bin = p.xy_bin_m
+    n_h = p.closed_headings
+    w = p.heuristic_weight
     ox, oy = cspace.grid.origin_xy_m
     radius = p.turn_radius_m
 
@@ -291,7 +347,7 @@ def search(
         expansions += 1
         if expansions > p.max_expansions:
             break
-        if expansions % yield_every == 0:
+        if expansions % su.yield_every == 0:
             yield expansions
         dist = math.hypot(pose[0] - goal[0], pose[1] - goal[1])
         near = dist < 2.0 * radius
@@ -335,29 +391,179 @@ def search(
             child = nodes.add((float(end[0]), float(end[1]), float(end[2])), to, d, g2, nid, int(j))
             heapq.heappush(heap, (g2 + w * h2, tie, child))
             tie += 1
-            if keep_tree:
+            if su.keep_tree:
                 tree.append((pose[0], pose[1], float(end[0]), float(end[1])))
 
     if best is None:
+        return _finish(su, None, expansions, tree)
+    chain = []
+    nid = best[1]
+    while nodes.parent[nid] >= 0:
+        parent = nodes.parent[nid]
+        chain.append((nodes.pose[parent], nodes.steer[parent], nodes.prim[nid], nodes.dir[nid]))
+        nid = parent
+    return _finish(su, (best[0], nodes.pose[best[1]], best[2], chain[::-1]), expansions, tree)
+
+
+_INITIAL_CAPACITY = 4096  # nodes and heap entries the compiled search starts with (it doubles them)
+
+
+def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
+    """The search loop in `search_kernel` (see the module docstring), driven in its steps."""
+    p, prims, grid, hgrid = su.p, su.prims, su.cspace.grid, su.hf.cspace.grid
+    kp = _primitive_arrays(prims)
+    rows, cols = grid.shape
+    n_h = p.closed_headings
+    # poses on the map only (start and successors are free): a bin or two of slack for rounding
+    bins_x = math.ceil(cols * grid.resolution_m / p.xy_bin_m) + 2
+    bins_y = math.ceil(rows * grid.resolution_m / p.xy_bin_m) + 2
+    params = _kernel.Params(
+        float(su.goal[0]), float(su.goal[1]), float(su.goal[2]), float(p.turn_radius_m), float(prims.arc_m),
+        float(p.reverse_factor), float(p.direction_change_m), float(p.steer_change_weight),
+        float(p.steer_weight), float(p.shot_range_m), float(p.heuristic_weight), float(p.goal_direction),
+        float(su.step_m), float(p.xy_bin_m), int(n_h), bins_x, bins_y, int(p.max_expansions),
+        int(su.yield_every), int(p.shot_every), int(p.shot_candidates), su.use_obstacle, su.use_kinematic,
+        su.exhaustive, float(grid.origin_xy_m[0]), float(grid.origin_xy_m[1]), float(grid.resolution_m),
+        float(su.hf.goal[0]), float(su.hf.goal[1]), float(su.hf.goal[2]), float(su.hf.turn_radius_m),
+        float(su.hf.rs_range_m), float(hgrid.origin_xy_m[0]), float(hgrid.origin_xy_m[1]),
+        float(hgrid.resolution_m),
+    )  # fmt: skip
+    blocked = np.ascontiguousarray(su.cspace.blocked, dtype=np.bool_)
+    obstacle_m = np.ascontiguousarray(su.hf.obstacle_m, dtype=np.float64)
+    cap = _INITIAL_CAPACITY
+    node_f = np.empty((cap, 5))
+    node_i = np.empty((cap, 3), dtype=np.int64)
+    full_h = np.empty(cap, dtype=np.bool_)
+    hf, ht, hn = np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64)
+    # the closed set: `seen` zeroed (calloc: only the pages the search touches are ever written)
+    best_g = np.empty(bins_y * bins_x * n_h)
+    seen = np.zeros(bins_y * bins_x * n_h, dtype=np.bool_)
+    si = np.zeros(8, dtype=np.int64)
+    sf = np.zeros(4)
+    node_f[0] = (su.start[0], su.start[1], su.start[2], float(p.start_direction), 0.0)
+    node_i[0] = (p.n_steer // 2, -1, -1)
+    full_h[0] = False
+    hf[0], ht[0], hn[0] = 0.0, 0, 0
+    root_key = _kernel.cell_key(float(su.start[0]), float(su.start[1]), float(su.start[2]), params)
+    best_g[root_key] = 0.0
+    seen[root_key] = True
+    si[_kernel.S_NODES], si[_kernel.S_HEAP], si[_kernel.S_TIE] = 1, 1, 1
+    si[_kernel.S_PENDING] = si[_kernel.S_BEST_NODE] = -1
+    while True:
+        status = _kernel.run(
+            params, blocked, obstacle_m, *kp, prims.kappas, reeds_shepp._K_SOLVER, reeds_shepp._K_BACKWARDS,
+            reeds_shepp._K_TWICE, reeds_shepp._K_EXTRA, reeds_shepp._K_MIRRORS, reeds_shepp._K_STEERS,
+            reeds_shepp._K_SHAPES, reeds_shepp._K_REFLECT, node_f, node_i, full_h, hf, ht, hn, best_g, seen,
+            si, sf,
+        )  # fmt: skip
+        if status == _kernel.YIELD:
+            yield int(si[_kernel.S_EXPANSIONS])
+        elif status == _kernel.GROW:
+            n = int(si[_kernel.S_NODES])
+            if n + kp[0].shape[1] > node_f.shape[0]:
+                node_f, node_i, full_h = _grown(node_f, n), _grown(node_i, n), _grown(full_h, n)
+            size = int(si[_kernel.S_HEAP])
+            hf, ht, hn = _grown(hf, size), _grown(ht, size), _grown(hn, size)
+        elif status == _kernel.ERROR:  # pragma: no cover - a bug: the table's bounds are the map's
+            raise RuntimeError("plan: a pose off the closed set's table")
+        else:
+            break
+    expansions = int(si[_kernel.S_EXPANSIONS])
+    n = int(si[_kernel.S_NODES])
+    tree: list[tuple[float, float, float, float]] = []
+    if su.keep_tree:
+        parents = node_i[1:n, _kernel.NPARENT]
+        tree = list(map(tuple, np.column_stack((node_f[parents, :2], node_f[1:n, :2])).tolist()))
+    nid = int(si[_kernel.S_BEST_NODE])
+    if nid < 0:
+        return _finish(su, None, expansions, tree)
+
+    def pose_of(i: int) -> Pose:
+        return (float(node_f[i, 0]), float(node_f[i, 1]), float(node_f[i, 2]))
+
+    chain = []
+    shot_pose = pose_of(nid)
+    while node_i[nid, _kernel.NPARENT] >= 0:
+        parent = int(node_i[nid, _kernel.NPARENT])
+        chain.append((pose_of(parent), int(node_i[parent, _kernel.NSTEER]), int(node_i[nid, _kernel.NPRIM]),
+                      float(node_f[nid, _kernel.NDIR])))  # fmt: skip
+        nid = parent
+    shot = reeds_shepp.solution_path(
+        int(si[_kernel.S_BEST_WORD]),
+        int(si[_kernel.S_BEST_MIRROR]),
+        *sf[_kernel.SF_T : _kernel.SF_V + 1].tolist(),
+    )
+    return _finish(su, (float(sf[_kernel.SF_BEST_COST]), shot_pose, shot, chain[::-1]), expansions, tree)
+
+
+def _grown(a: np.ndarray, used: int) -> np.ndarray:
+    """`a` twice as long, its first `used` rows kept."""
+    out = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
+    out[:used] = a[:used]
+    return out
+
+
+def _primitive_arrays(prims: MotionPrimitives) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The successor sets by steering index as the kernel takes them: samples (n_steer, most successors,
+    m, 3), how many successors, their steering indices and directions (padded)."""
+    n_steer = prims.n_steer
+    most = max(s.shape[0] for s in prims.samples)
+    m = prims.samples[0].shape[1]
+    samples = np.zeros((n_steer, most, m, 3))
+    n_succ = np.zeros(n_steer, dtype=np.int64)
+    to_index = np.zeros((n_steer, most), dtype=np.int64)
+    direction = np.zeros((n_steer, most))
+    for i in range(n_steer):
+        k = prims.samples[i].shape[0]
+        samples[i, :k] = prims.samples[i]
+        n_succ[i] = k
+        to_index[i, :k] = prims.to_index[i]
+        direction[i, :k] = prims.direction[i]
+    return samples, n_succ, to_index, direction
+
+
+def warm_up() -> None:
+    """Compile the search loop and the Reeds-Shepp kernels it calls, or load them from numba's cache
+    (seconds on a machine that never compiled them): before a process's first plan, never in it."""
+    reeds_shepp.warm_up()
+    grid = GridMap(np.zeros((40, 40), dtype=bool), 0.25)
+    cs = build_cspace(grid, Footprint(front_m=1.5, rear_m=0.5, width_m=1.0), margin_m=0.0, n_headings=36)
+    params = PlannerParams(turn_radius_m=2.0, arc_m=0.75, closed_headings=36, shot_range_m=1.0)
+    plan(cs, (2.0, 2.0, 0.0), (8.0, 8.0, math.pi), params)
+
+
+_Edge = tuple[Pose, int, int, float]  # the parent's pose and steering, the primitive, its direction
+
+
+def _finish(
+    su: _Setup,
+    best: tuple[float, Pose, reeds_shepp.RsPath | None, list[_Edge]] | None,
+    expansions: int,
+    tree: list[tuple[float, float, float, float]],
+) -> Plan:
+    """The `Plan` of a search that ended: `best` (cost, the pose the shot starts from, the shot, the
+    edges from the start to that pose) or None."""
+    if best is None:
         reason = (
             "the expansion limit was reached"
-            if expansions > p.max_expansions
+            if expansions > su.p.max_expansions
             else "no path: the search space is exhausted"
         )
-        out = fail(reason, expansions)
+        out = _fail(su.t0, reason, expansions)
         out.tree = tree
         return out
-    poses, dirs_out = _reconstruct(nodes, prims, best[1], start)
-    if best[2] is not None:
-        rs_poses, rs_dirs = reeds_shepp.sample(nodes.pose[best[1]], best[2], radius, step)
+    cost, shot_pose, shot, chain = best
+    poses, dirs_out = _reconstruct(su.prims, chain, su.start)
+    if shot is not None:
+        rs_poses, rs_dirs = reeds_shepp.sample(shot_pose, shot, su.p.turn_radius_m, su.step_m)
         poses = np.vstack([poses, rs_poses[1:]])
         dirs_out = np.concatenate([dirs_out, rs_dirs[1:]])
     seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
     moving = dirs_out[1:]
     changes = int(np.sum(np.diff(moving[seg > 1e-9]) != 0)) if moving.size > 1 else 0
     return Plan(
-        True, poses, dirs_out, best[0], float(seg.sum()), changes, expansions,
-        1e3 * (time.perf_counter() - t0), "", tree,
+        True, poses, dirs_out, cost, float(seg.sum()), changes, expansions,
+        1e3 * (time.perf_counter() - su.t0), "", tree,
     )  # fmt: skip
 
 
@@ -376,21 +582,13 @@ def _shot(
     return None
 
 
-def _reconstruct(
-    nodes: _Nodes, prims: MotionPrimitives, nid: int, start: Pose
-) -> tuple[np.ndarray, np.ndarray]:
-    chain = []
-    while nid >= 0:
-        chain.append(nid)
-        nid = nodes.parent[nid]
-    chain.reverse()
+def _reconstruct(prims: MotionPrimitives, chain: list[_Edge], start: Pose) -> tuple[np.ndarray, np.ndarray]:
     poses = [np.asarray([start])]
     dirs = [np.asarray([0.0])]
-    for child in chain[1:]:
-        parent = nodes.parent[child]
-        samples = _edge_samples(prims, nodes.steer[parent], nodes.pose[parent])[nodes.prim[child]]
+    for pose, steer, prim, d in chain:
+        samples = _edge_samples(prims, steer, pose)[prim]
         poses.append(samples)
-        dirs.append(np.full(samples.shape[0], nodes.dir[child]))
+        dirs.append(np.full(samples.shape[0], d))
     out_dirs = np.concatenate(dirs)
     if out_dirs.size > 1:
         out_dirs[0] = out_dirs[1]

@@ -27,7 +27,7 @@ from . import reeds_shepp_kernel as _kernel
 
 __all__ = [
     "RsPath", "Segment", "all_paths", "normalised", "sample", "segment_arrays", "shortest_length",
-    "shortest_normalised_length", "shortest_path", "shortest_paths", "warm_up",
+    "shortest_normalised_length", "shortest_path", "shortest_paths", "solution_path", "warm_up",
 ]  # fmt: skip
 
 _ZERO = 10.0 * np.finfo(float).eps
@@ -254,6 +254,14 @@ _K_BACKWARDS = np.array([w[2] for w in _WORDS], dtype=np.bool_)
 _K_TWICE = np.array([w[3] in _U_TWICE for w in _WORDS], dtype=np.bool_)
 _K_EXTRA = np.array([_EXTRA[w[3]] for w in _WORDS], dtype=np.float64)
 _K_MIRRORS = np.array([(sx, sy) for sx, sy, _ in _MIRRORS], dtype=np.float64)
+# How a solution row becomes segments in compiled code (`search_kernel`): each word's steerings as
+# curvature signs (padded), its shape as an index of `_SHAPES`, and whether a mirror reflects
+_SHAPES = ("tuv", "vut", "tuUv", "tuuv", "tHuv", "vuHt", "tHuHv")
+_K_STEERS = np.array(
+    [[int(_CURVATURE[c]) for c in w[1].ljust(5, "S")] for w in _WORDS], dtype=np.int64
+)  # fmt: skip
+_K_SHAPES = np.array([_SHAPES.index(w[3]) for w in _WORDS], dtype=np.int64)
+_K_REFLECT = np.array([reflect for _, _, reflect in _MIRRORS], dtype=np.bool_)
 
 
 def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
@@ -266,6 +274,14 @@ def _solutions(x: float, y: float, phi: float) -> list[_Solution]:
         sx, _, reflect = _MIRRORS[int(m)]
         out.append((length, word, shape, (t, u, v), sx, reflect))
     return out
+
+
+def solution_path(word: int, mirror: int, t: float, u: float, v: float) -> RsPath:
+    """The path of a compiled solution row (`reeds_shepp_kernel.solutions`: word and mirror indices,
+    t, u, v), as `all_paths` builds it."""
+    _, name, _, shape = _WORDS[word]
+    sx, _, reflect = _MIRRORS[mirror]
+    return _path(name, _shape(shape, (t, u, v), sx), reflect)
 
 
 def _build(solution: _Solution) -> RsPath:
