@@ -411,7 +411,7 @@ _INITIAL_CAPACITY = 4096  # nodes and heap entries the compiled search starts wi
 def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
     """The search loop in `search_kernel` (see the module docstring), driven in its steps."""
     p, prims, grid, hgrid = su.p, su.prims, su.cspace.grid, su.hf.cspace.grid
-    kp = _primitive_arrays(prims)
+    kp = _primitive_arrays(prims)  # samples, n_succ, to_index, direction, kappas
     rows, cols = grid.shape
     n_h = p.closed_headings
     # poses on the map only (start and successors are free): a bin or two of slack for rounding
@@ -451,7 +451,7 @@ def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
     si[_kernel.S_PENDING] = si[_kernel.S_BEST_NODE] = -1
     while True:
         status = _kernel.run(
-            params, blocked, obstacle_m, *kp, prims.kappas, reeds_shepp._K_SOLVER, reeds_shepp._K_BACKWARDS,
+            params, blocked, obstacle_m, *kp, reeds_shepp._K_SOLVER, reeds_shepp._K_BACKWARDS,
             reeds_shepp._K_TWICE, reeds_shepp._K_EXTRA, reeds_shepp._K_MIRRORS, reeds_shepp._K_STEERS,
             reeds_shepp._K_SHAPES, reeds_shepp._K_REFLECT, node_f, node_i, full_h, hf, ht, hn, best_g, seen,
             si, sf,
@@ -503,9 +503,17 @@ def _grown(a: np.ndarray, used: int) -> np.ndarray:
     return out
 
 
-def _primitive_arrays(prims: MotionPrimitives) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The successor sets by steering index as the kernel takes them: samples (n_steer, most successors,
-    m, 3), how many successors, their steering indices and directions (padded)."""
+_KernelPrimitives = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+_KERNEL_PRIMITIVES: dict[int, tuple[MotionPrimitives, _KernelPrimitives]] = {}  # by id, the set kept alive
+
+
+def _primitive_arrays(prims: MotionPrimitives) -> _KernelPrimitives:
+    """The successor sets by steering index as the kernel takes them (kept per set, as `build_primitives`
+    keeps the sets): samples (n_steer, most successors, m, 3), how many successors, their steering
+    indices and directions (padded), and the curvatures."""
+    kept = _KERNEL_PRIMITIVES.get(id(prims))
+    if kept is not None and kept[0] is prims:
+        return kept[1]
     n_steer = prims.n_steer
     most = max(s.shape[0] for s in prims.samples)
     m = prims.samples[0].shape[1]
@@ -519,7 +527,11 @@ def _primitive_arrays(prims: MotionPrimitives) -> tuple[np.ndarray, np.ndarray, 
         n_succ[i] = k
         to_index[i, :k] = prims.to_index[i]
         direction[i, :k] = prims.direction[i]
-    return samples, n_succ, to_index, direction
+    out = (samples, n_succ, to_index, direction, np.array(prims.kappas, dtype=np.float64))
+    if len(_KERNEL_PRIMITIVES) >= 16:
+        _KERNEL_PRIMITIVES.pop(next(iter(_KERNEL_PRIMITIVES)))
+    _KERNEL_PRIMITIVES[id(prims)] = (prims, out)
+    return out
 
 
 def warm_up() -> None:
