@@ -30,9 +30,8 @@ from typing import Any
 import numpy as np
 
 from bywire.host.navigation import cspace as cspace_mod
-from bywire.host.navigation import reeds_shepp
 from bywire.host.navigation.cspace import CSpace, build_cspace
-from bywire.host.navigation.hybrid_astar import PlannerParams, plan
+from bywire.host.navigation.hybrid_astar import PlannerParams, plan, warm_up
 from bywire.host.navigation.reference_maps import ReferenceProblem, reference_problems
 
 PEERS = ("RRTstar", "BITstar")
@@ -106,7 +105,7 @@ def main(args: argparse.Namespace) -> int:
 
             ou.setLogLevel(ou.LogLevel.LOG_ERROR)
     doc: dict[str, Any] = {"maps": [], "goals": []}
-    reeds_shepp.warm_up()  # numba's compile or cache load, which a planner's process pays at its start
+    warm_up()  # numba's compile or cache load, which a planner's process pays at its start
     for problem in reference_problems():
         margin = _margin(problem)
         cspace_mod._kernel_spectra.cache_clear()

@@ -58,8 +58,8 @@ ZONE_MARGIN_TIGHT_M = 0.1
 # a metre backwards costs this many forwards: a driver backs out of a spot and turns, and does not
 # reverse the length of the lot because that is a few metres shorter
 ZONE_REVERSE_FACTOR = 2.5
-# the inline planner's step: about 0.1-0.2 s of search on this machine, well inside the behaviour's hang
-# bound; a plan of a few thousand expansions takes a few cycles
+# the inline planner's step: a few milliseconds of compiled search on this machine (0.1-0.2 s in
+# Python), well inside the behaviour's hang bound; a plan of a few thousand expansions takes a few cycles
 SEARCH_STEP_EXPANSIONS = 500
 SEARCH = PlannerParams(turn_radius_m=rules.KTURN_RADIUS_M, reverse_factor=ZONE_REVERSE_FACTOR)
 # the finer search graph of `PlanRequest.fine`: 0.5 m arcs and a 0.3 m closed set find the many-point

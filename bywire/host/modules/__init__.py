@@ -640,6 +640,8 @@ IMPLEMENTATIONS: dict[str, tuple[str, ...]] = {
 WARM_UPS: dict[str, tuple[str, ...]] = {
     "lidar_perception": ("bywire.host.perception.grid",),
     "lane_offset": ("bywire.host.perception.lane_markers",),
+    # the zone planner's search runs inline in the behaviour (lockstep SIL): 10 s to compile cold
+    "urban_behaviour": ("bywire.host.navigation.hybrid_astar",),
 }
 
 

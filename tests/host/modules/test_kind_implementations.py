@@ -55,6 +55,7 @@ def test_the_kernels_a_start_would_compile_are_compiled_before_the_run() -> None
     assert {n for names in WARM_UPS.values() for n in names} == {
         "bywire.host.perception.grid",
         "bywire.host.perception.lane_markers",
+        "bywire.host.navigation.hybrid_astar",
     }
     for names in WARM_UPS.values():
         for name in names:

@@ -36,9 +36,9 @@ def _leave_real_time() -> None:
 def _warm() -> bool:
     """Imports the planner in the worker (at its normal priority) before the first request needs it."""
     import bywire.host.behaviour.path_planning  # noqa: F401
-    from bywire.host.navigation.reeds_shepp import warm_up
+    from bywire.host.navigation.hybrid_astar import warm_up
 
-    warm_up()  # the compiled Reeds-Shepp kernels, not in the first plan
+    warm_up()  # the compiled search and Reeds-Shepp kernels, not in the first plan
     return True
 
 
