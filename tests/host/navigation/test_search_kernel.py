@@ -1,8 +1,9 @@
 """The compiled search loop (`search_kernel`) against the Python one it replaces (`hybrid_astar`'s
 reference, `compiled=False`): the same expansions, the same steps, the same path to the last bit (every
 pose, direction, the cost, the length, the direction changes), the same tree, on every goal of the
-reference maps and on random small maps with every heuristic, weight and direction setting; and the
-compiled `math.hypot` that makes this possible against CPython's own."""
+reference maps and on random small maps with every heuristic, weight and direction setting; the
+compiled `math.hypot` that makes this possible against CPython's own; and the compiled grid Dijkstra of
+the obstacle heuristic against scipy's on the sparse graph of the grid (how it was computed before)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,13 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from bywire.host.navigation import hybrid_astar
 from bywire.host.navigation.cspace import Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
+from bywire.host.navigation.heuristics import free_space_distance
 from bywire.host.navigation.hybrid_astar import Plan, PlannerParams, plan, search
 from bywire.host.navigation.reference_maps import reference_problems
 from bywire.host.navigation.search_kernel import py_hypot
@@ -118,3 +122,57 @@ def test_the_compiled_hypot_is_cpythons() -> None:
         want, got = math.hypot(a, b), py_hypot(float(a), float(b))
         assert want == got or (math.isnan(want) and math.isnan(got)), (a, b)
     assert math.isnan(py_hypot(math.nan, 1.0)) and py_hypot(math.nan, math.inf) == math.inf
+
+
+def _scipy_free_space_distance(free: np.ndarray, goal_cell: tuple[int, int], res_m: float) -> np.ndarray:
+    """`heuristics.free_space_distance` as it was: scipy's Dijkstra on the grid's 8-connected graph."""
+    rows, cols = free.shape
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    src: list[np.ndarray] = []
+    dst: list[np.ndarray] = []
+    wts: list[np.ndarray] = []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r0, r1 = max(0, -dr), rows - max(0, dr)
+        c0, c1 = max(0, -dc), cols - max(0, dc)
+        a = free[r0:r1, c0:c1] & free[r0 + dr : r1 + dr, c0 + dc : c1 + dc]
+        if dr and dc:
+            a &= free[r0 + dr : r1 + dr, c0:c1] | free[r0:r1, c0 + dc : c1 + dc]
+        i = idx[r0:r1, c0:c1][a]
+        j = idx[r0 + dr : r1 + dr, c0 + dc : c1 + dc][a]
+        w = res_m * (math.sqrt(2.0) if dr and dc else 1.0)
+        src += [i, j]
+        dst += [j, i]
+        wts += [np.full(i.size, w), np.full(i.size, w)]
+    n = rows * cols
+    graph = coo_matrix(
+        (np.concatenate(wts), (np.concatenate(src), np.concatenate(dst))), shape=(n, n)
+    ).tocsr()
+    out = np.asarray(dijkstra(graph, directed=False, indices=int(idx[goal_cell])), dtype=float).reshape(
+        rows, cols
+    )
+    if not free[goal_cell]:
+        out[:] = np.inf
+        out[goal_cell] = 0.0
+    return out
+
+
+def test_the_compiled_grid_distance_is_scipys() -> None:
+    rng = np.random.default_rng(5)
+    cases = []
+    for problem in reference_problems():
+        cs = build_cspace(problem.grid, problem.footprint, margin_m=0.3)
+        for _, goal in problem.goals:
+            row, col = cs.grid.cell_of(goal[0], goal[1])
+            free = cs.disk_free.copy()
+            free[int(row), int(col)] = True
+            cases.append((free, (int(row), int(col)), cs.grid.resolution_m))
+    for _ in range(40):
+        shape = (int(rng.integers(2, 40)), int(rng.integers(2, 40)))
+        free = rng.random(shape) < rng.uniform(0.3, 1.0)
+        cases.append(
+            (free, (int(rng.integers(shape[0])), int(rng.integers(shape[1]))), rng.uniform(0.05, 1.0))
+        )
+    for free, goal_cell, res in cases:
+        want = _scipy_free_space_distance(free, goal_cell, res)
+        got = free_space_distance(free, goal_cell, res)
+        assert np.array_equal(want, got)
