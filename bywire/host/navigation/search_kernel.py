@@ -461,18 +461,15 @@ def run(
         c, s = math.cos(th), math.sin(th)
         for j in range(n_succ[steer]):
             # the edge's samples moved to the node (`hybrid_astar._edge_samples`), the last one the
-            # successor, checked in order until one collides
-            hit = False
-            ex = ey = eth = 0.0
-            for i in range(m):
-                lx, ly = samples[steer, j, i, 0], samples[steer, j, i, 1]
-                ex = x + c * lx - s * ly
-                ey = y + s * lx + c * ly
-                eth = th + samples[steer, j, i, 2]
-                if _blocked_at(ex, ey, eth, blocked, p.grid_ox, p.grid_oy, p.grid_res):
-                    hit = True
-                    break
-            if hit:
+            # successor. The reference checks them all, then the closed set and the heuristic; any
+            # order gives the same successors, and the end pose first, then the closed set, then the
+            # rest of the edge skips most lookups (the end is the likeliest to collide, and most
+            # successors of a dense search fall in cells already reached more cheaply).
+            lx, ly = samples[steer, j, m - 1, 0], samples[steer, j, m - 1, 1]
+            ex = x + c * lx - s * ly
+            ey = y + s * lx + c * ly
+            eth = th + samples[steer, j, m - 1, 2]
+            if _blocked_at(ex, ey, eth, blocked, p.grid_ox, p.grid_oy, p.grid_res):
                 continue
             d = direction[steer, j]
             to = to_index[steer, j]
@@ -494,6 +491,15 @@ def run(
             if p.use_kinematic:
                 h2 = max(h2, math.hypot(ex - p.goal_x, ey - p.goal_y))
             if not math.isfinite(h2):
+                continue
+            hit = False
+            for i in range(m - 1):
+                lx, ly, lth = samples[steer, j, i, 0], samples[steer, j, i, 1], samples[steer, j, i, 2]
+                px, py = x + c * lx - s * ly, y + s * lx + c * ly
+                if _blocked_at(px, py, th + lth, blocked, p.grid_ox, p.grid_oy, p.grid_res):
+                    hit = True
+                    break
+            if hit:
                 continue
             best_g[k2] = g2
             seen[k2] = True
