@@ -22,6 +22,7 @@ from bywire.host.navigation.cspace import Footprint, build_cspace
 from bywire.host.navigation.grid_map import GridMap
 from bywire.host.navigation.heuristics import free_space_distance
 from bywire.host.navigation.hybrid_astar import Plan, PlannerParams, plan, search
+from bywire.host.navigation.primitives import build_primitives
 from bywire.host.navigation.reference_maps import reference_problems
 from bywire.host.navigation.search_kernel import py_hypot
 
@@ -74,24 +75,40 @@ poses = st.tuples(st.floats(1.0, 7.0), st.floats(1.0, 7.0), st.floats(-4.0, 4.0)
     directions=st.tuples(st.sampled_from([-1.0, 0.0, 1.0]), st.sampled_from([-1.0, 0.0, 1.0])),
     reverse_factor=st.sampled_from([1.0, 1.5, 2.5]),
     n_steer=st.sampled_from([3, 5]),
+    graph=st.sampled_from([(0.75, 0.5), (0.5, 0.3), (1.5, 0.5)]),  # arc_m, xy_bin_m
+    rate_limited=st.booleans(),
+    rs_range_m=st.sampled_from([3.0, 1e9]),
+    origin=st.sampled_from([(0.0, 0.0), (-3.7, 12.3)]),
     capacity=st.sampled_from([16, 4096]),
 )
 def test_the_compiled_search_is_the_reference_on_random_small_maps(  # type: ignore[no-untyped-def]
-    boxes, start, goal, heuristic, exhaustive, weight, directions, reverse_factor, n_steer,
-    capacity,
+    boxes, start, goal, heuristic, exhaustive, weight, directions, reverse_factor, n_steer, graph,
+    rate_limited, rs_range_m, origin, capacity,
 ) -> None:  # fmt: skip
-    grid = GridMap.from_boxes((8.0, 8.0), 0.25, [(x, y, th, 1.5, 1.0) for x, y, th in boxes])
+    ox, oy = origin
+    start, goal = (start[0] + ox, start[1] + oy, start[2]), (goal[0] + ox, goal[1] + oy, goal[2])
+    boxes = [(x + ox, y + oy, th, 1.5, 1.0) for x, y, th in boxes]
+    grid = GridMap.from_boxes((8.0, 8.0), 0.25, boxes, origin_xy_m=origin)
     cs = build_cspace(grid, SMALL_CAR, margin_m=0.0, n_headings=36)
     free = ~cs.collides(
         np.array([start[0], goal[0]]), np.array([start[1], goal[1]]), np.array([start[2], goal[2]])
     )
     assume(free.all())
+    arc_m, xy_bin_m = graph
     params = PlannerParams(
-        turn_radius_m=2.0, arc_m=0.75, n_steer=n_steer, xy_bin_m=0.5, closed_headings=36,
-        heuristic_weight=weight, shot_range_m=12.0, rs_range_m=3.0, reverse_factor=reverse_factor,
+        turn_radius_m=2.0, arc_m=arc_m, n_steer=n_steer, xy_bin_m=xy_bin_m, closed_headings=36,
+        heuristic_weight=weight, shot_range_m=12.0, rs_range_m=rs_range_m, reverse_factor=reverse_factor,
         start_direction=directions[0], goal_direction=directions[1], max_expansions=1500,
     )  # fmt: skip
-    kw = {"heuristic": heuristic, "exhaustive": exhaustive, "keep_tree": True, "yield_every": 37}
+    # steering rate limited: successor sets of different sizes (the kernel's are padded)
+    prims = build_primitives(2.0, arc_m, n_steer, 0.125, max_kappa_rate_per_m2=0.4) if rate_limited else None
+    kw = {
+        "heuristic": heuristic,
+        "exhaustive": exhaustive,
+        "keep_tree": True,
+        "yield_every": 37,
+        "primitives": prims,
+    }
     ref_steps, ref = _steps(search(cs, start, goal, params, compiled=False, **kw))  # type: ignore[arg-type]
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(hybrid_astar, "_INITIAL_CAPACITY", capacity)  # small: the arrays grow, often
