@@ -7,6 +7,10 @@ test_reeds_shepp.py holds every solution equal to the Python reference within 1e
 and hypot are the C library's, CPython's hypot is its own: they differ in the last bit on a few
 percent of problems). IEEE `remainder` is CPython's algorithm written out (numba has none), exact like
 it. No fastmath. Compiled once per machine (`cache=True`) and released from the GIL while it runs.
+
+`search_kernel` (the compiled Hybrid A* loop) calls these. numba keys a cached function to its own
+file only: a change here reaches the search's cache only with a change to search_kernel.py (or an
+emptied cache), so change that file's `KERNEL_DEPENDS` stamp with any change here.
 """
 
 from __future__ import annotations
@@ -53,17 +57,21 @@ def _tau_omega(u: float, v: float, xi: float, eta: float, phi: float) -> tuple[f
 
 
 @njit(cache=True, nogil=True)
-def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, float, float]:
-    """Word `word` of section 8 (the solver of reeds_shepp._WORDS[k]): (found, t, u, v)."""
+def _solve(
+    word: int, x: float, y: float, phi: float, sin_phi: float, cos_phi: float
+) -> tuple[bool, float, float, float]:
+    """Word `word` of section 8 (the solver of reeds_shepp._WORDS[k]): (found, t, u, v). `sin_phi`,
+    `cos_phi`: math.sin(phi), math.cos(phi), which every word needs (computed once per call, not per
+    word and mirror: the same values)."""
     if word == 0:  # 8.1 LSL
-        a, b = x - math.sin(phi), y - 1.0 + math.cos(phi)
+        a, b = x - sin_phi, y - 1.0 + cos_phi
         u, t = math.hypot(a, b), math.atan2(b, a)
         if t >= -_ZERO:
             v = _wrap(phi - t)
             if v >= -_ZERO:
                 return True, t, u, v
     elif word == 1:  # 8.2 LSR
-        a, b = x + math.sin(phi), y - 1.0 - math.cos(phi)
+        a, b = x + sin_phi, y - 1.0 - cos_phi
         u1, t1 = math.hypot(a, b), math.atan2(b, a)
         u1 = u1 * u1
         if u1 >= 4.0:
@@ -74,7 +82,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
             if t >= -_ZERO and v >= -_ZERO:
                 return True, t, u, v
     elif word == 2:  # 8.3 LRL
-        xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
+        xi, eta = x - sin_phi, y - 1.0 + cos_phi
         u1, theta = math.hypot(xi, eta), math.atan2(eta, xi)
         if u1 <= 4.0:
             u = -2.0 * math.asin(0.25 * u1)
@@ -83,7 +91,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
             if t >= -_ZERO and u <= _ZERO:
                 return True, t, u, v
     elif word == 3:  # 8.7 LRLR, u then -u
-        xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+        xi, eta = x + sin_phi, y - 1.0 - cos_phi
         rho = 0.25 * (2.0 + math.hypot(xi, eta))
         if rho <= 1.0:
             u = math.acos(rho)
@@ -91,7 +99,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
             if t >= -_ZERO and v <= _ZERO:
                 return True, t, u, v
     elif word == 4:  # 8.8 LRLR, u twice
-        xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+        xi, eta = x + sin_phi, y - 1.0 - cos_phi
         rho = (20.0 - xi * xi - eta * eta) / 16.0
         if 0.0 <= rho <= 1.0:
             u = -math.acos(rho)
@@ -100,7 +108,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
                 if t >= -_ZERO and v >= -_ZERO:
                     return True, t, u, v
     elif word == 5:  # 8.9 LRSL
-        xi, eta = x - math.sin(phi), y - 1.0 + math.cos(phi)
+        xi, eta = x - sin_phi, y - 1.0 + cos_phi
         rho, theta = math.hypot(xi, eta), math.atan2(eta, xi)
         if rho >= 2.0:
             r = math.sqrt(rho * rho - 4.0)
@@ -110,7 +118,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
             if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
                 return True, t, u, v
     elif word == 6:  # 8.10 LRSR
-        xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+        xi, eta = x + sin_phi, y - 1.0 - cos_phi
         rho, theta = math.hypot(eta, xi), math.atan2(xi, -eta)
         if rho >= 2.0:
             t = theta
@@ -119,7 +127,7 @@ def _solve(word: int, x: float, y: float, phi: float) -> tuple[bool, float, floa
             if t >= -_ZERO and u <= _ZERO and v <= _ZERO:
                 return True, t, u, v
     else:  # 8.11 LRSLR
-        xi, eta = x + math.sin(phi), y - 1.0 - math.cos(phi)
+        xi, eta = x + sin_phi, y - 1.0 - cos_phi
         rho = math.hypot(xi, eta)
         if rho >= 2.0:
             u = 4.0 - math.sqrt(rho * rho - 4.0)
@@ -151,11 +159,17 @@ def solutions(
     c, s = math.cos(phi), math.sin(phi)
     xb, yb = x * c + y * s, x * s - y * c
     n = 0
+    # a mirror's phi * sx * sy is phi or -phi exactly (sx, sy are +-1): their sines and cosines once
+    neg = -phi
+    sin_neg, cos_neg = math.sin(neg), math.cos(neg)
     for w in range(solver.shape[0]):
         px, py = (xb, yb) if backwards[w] else (x, y)
         for m in range(mirrors.shape[0]):
             sx, sy = mirrors[m, 0], mirrors[m, 1]
-            found, t, u, v = _solve(solver[w], sx * px, sy * py, phi * sx * sy)
+            if sx * sy > 0.0:
+                found, t, u, v = _solve(solver[w], sx * px, sy * py, phi, s, c)
+            else:
+                found, t, u, v = _solve(solver[w], sx * px, sy * py, neg, sin_neg, cos_neg)
             if not found:
                 continue
             length = abs(t) + abs(u) * (2.0 if twice[w] else 1.0) + abs(v) + extra[w]

@@ -17,7 +17,8 @@ and `GROW` when the node store or the heap may overflow in the next expansion (t
 arrays and calls again); all of the search's state is in the arrays passed in.
 
 numba caches a compiled function by its own file only: a change to `reeds_shepp_kernel`, which this
-calls, reaches this module's cache only with a change to this file (or an emptied cache).
+calls, reaches this module's cache only with a change to this file (or an emptied cache): such a
+change also changes `KERNEL_DEPENDS` here.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from .reeds_shepp_kernel import _blocked_at, _wrap, path_collides, shortest_leng
 __all__ = ["DONE", "ERROR", "GROW", "YIELD", "Params", "cell_key", "py_hypot", "run"]
 
 DONE, YIELD, GROW, ERROR = 0, 1, 2, 3
+# What of reeds_shepp_kernel this file's cache was compiled against (see the module docstring)
+KERNEL_DEPENDS = "reeds_shepp_kernel: sines and cosines of phi once per call"
 
 # Columns of the node store: node_f (x, y, heading, direction, g) and node_i (steering index, parent,
 # index of the primitive from the parent's steering set)
