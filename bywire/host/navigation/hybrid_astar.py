@@ -452,6 +452,8 @@ def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
     full_h[0] = False
     hf[0], ht[0], hn[0] = 0.0, 0, 0
     root_key = _kernel.cell_key(float(su.start[0]), float(su.start[1]), float(su.start[2]), params)
+    if root_key < 0:  # pragma: no cover - a bug: the start is free, so on the map
+        raise RuntimeError("plan: the start off the closed set's table")
     best_g[root_key] = 0.0
     seen[root_key] = True
     si[_kernel.S_NODES], si[_kernel.S_HEAP], si[_kernel.S_TIE] = 1, 1, 1
