@@ -26,8 +26,8 @@ a tolerance, and the heuristics, which measure to the exact goal, stay admissibl
 `exhaustive=True` keeps searching until no open node can beat the best complete path (the tests'
 reference optimum).
 
-The loop runs compiled (`search_kernel`, numba: ~7 us an expansion, half of it the Reeds-Shepp
-heuristic; the Python loop took ~100 us). The Python loop stays here as the reference
+The loop runs compiled (`search_kernel`, numba: ~5 us an expansion, the Reeds-Shepp heuristic its
+largest part; the Python loop took ~100 us). The Python loop stays here as the reference
 (`compiled=False`): tests/host/navigation/test_search_kernel.py holds the two to the same expansions,
 steps and path, every pose to the last bit. `warm_up` compiles the kernels (or loads them from numba's
 cache) before a process's first plan. The successor set is built once per parameters
