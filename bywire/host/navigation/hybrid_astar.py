@@ -435,8 +435,10 @@ def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
         float(su.hf.rs_range_m), float(hgrid.origin_xy_m[0]), float(hgrid.origin_xy_m[1]),
         float(hgrid.resolution_m),
     )  # fmt: skip
-    blocked = np.ascontiguousarray(su.cspace.blocked, dtype=np.bool_)
-    obstacle_m = np.ascontiguousarray(su.hf.obstacle_m, dtype=np.float64)
+    # the types the kernel was compiled (and warmed) for: another layout or a read-only array would
+    # compile it again, for seconds, inside the plan
+    blocked = _writable(np.ascontiguousarray(su.cspace.blocked, dtype=np.bool_))
+    obstacle_m = _writable(np.ascontiguousarray(su.hf.obstacle_m, dtype=np.float64))
     cap = _INITIAL_CAPACITY
     node_f = np.empty((cap, 5))
     node_i = np.empty((cap, 3), dtype=np.int64)
@@ -503,6 +505,10 @@ def _search_compiled(su: _Setup) -> Generator[int, None, Plan]:
         *sf[_kernel.SF_T : _kernel.SF_V + 1].tolist(),
     )
     return _finish(su, (float(sf[_kernel.SF_BEST_COST]), shot_pose, shot, chain[::-1]), expansions, tree)
+
+
+def _writable(a: np.ndarray) -> np.ndarray:
+    return a if a.flags.writeable else a.copy()
 
 
 def _grown(a: np.ndarray, used: int) -> np.ndarray:
