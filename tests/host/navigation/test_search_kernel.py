@@ -193,3 +193,25 @@ def test_the_compiled_grid_distance_is_scipys() -> None:
         want = _scipy_free_space_distance(free, goal_cell, res)
         got = free_space_distance(free, goal_cell, res)
         assert np.array_equal(want, got)
+
+
+def test_every_plan_runs_the_one_compiled_loop_warm_up_compiled() -> None:
+    """A plan whose arguments reach the kernel with other types (a read-only table, another layout,
+    an int for a float) would compile the loop again, for seconds, inside the plan: every kind of call
+    runs the one signature `warm_up` compiles."""
+    from bywire.host.navigation import heuristics, search_kernel
+    from bywire.host.navigation.cspace import CSpace
+
+    hybrid_astar.warm_up()
+    grid = GridMap.from_boxes((8.0, 8.0), 0.25, [(4.0, 4.0, 0.3, 1.5, 1.0)])
+    cs = build_cspace(grid, SMALL_CAR, margin_m=0.0, n_headings=36)
+    blocked = cs.blocked.copy()
+    blocked.setflags(write=False)
+    read_only = CSpace(cs.grid, blocked, cs.disk_free, cs.footprint, cs.margin_m)
+    params = PlannerParams(turn_radius_m=2, arc_m=1, closed_headings=36, reverse_factor=2)  # ints
+    prims = build_primitives(2.0, 0.75, 3, 0.125, max_kappa_rate_per_m2=0.4)
+    for space in (cs, read_only):
+        for kw in ({}, {"exhaustive": True, "keep_tree": True}, {"heuristic": "none"}, {"primitives": prims}):
+            plan(space, (1.5, 1.5, 0), (6, 6.5, 3), params, **kw)  # type: ignore[arg-type]
+    assert len(search_kernel.run.signatures) == 1
+    assert len(heuristics._grid_distance.signatures) == 1
