@@ -42,8 +42,10 @@ bridges"):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -211,9 +213,15 @@ class VehicleState:
     accel_mps2: float
     length_m: float
     width_m: float
-    position_std_m: float
     silent: bool
     frozen: bool
+    # The position's 1-sigma, computed when first asked for: only the radar association's gate asks, for
+    # the few stations on our lane ahead, and its covariance prediction is most of a state's cost.
+    position_std: Callable[[], float] = field(repr=False, compare=False)
+
+    @functools.cached_property
+    def position_std_m(self) -> float:
+        return self.position_std()
 
     @property
     def low_confidence(self) -> bool:
@@ -256,8 +264,8 @@ class VehicleManagerConfig:
     max_age_s: float = 2.0  # older messages are useless to a 10-Hz controller
 
 
-def _transition(x: FloatArray, dt: float) -> FloatArray:
-    """Phi = I + A dt + A^2 dt^2 / 2 of the CYRA model linearised at x (A^3 = 0)."""
+def _transition_matrices(x: FloatArray, dt: float) -> FloatArray:
+    """`_transition` as the matrix products define it: the reference `_transition` is held to."""
     A = np.zeros((6, 6))
     c, s = math.cos(x[IPSI]), math.sin(x[IPSI])
     v = x[IV]
@@ -266,6 +274,37 @@ def _transition(x: FloatArray, dt: float) -> FloatArray:
     A[IPSI, IW] = 1.0
     A[IV, IA] = 1.0
     return np.eye(6) + A * dt + (A @ A) * (0.5 * dt * dt)
+
+
+def _transition(x: FloatArray, dt: float) -> FloatArray:
+    """Phi = I + A dt + A^2 dt^2 / 2 of the CYRA model linearised at x (A^3 = 0).
+
+    Written out entry by entry: a filter step builds four of these, and the matrix form spent most of
+    its time allocating. Each entry is the same IEEE operations on the same operands as
+    `_transition_matrices`: every entry of A @ A is a sum in which at most one product is non-zero, which
+    any summation order and fused multiply-add round alike, and an exact zero added to the identity's 0
+    or 1 changes nothing. Non-finite operands (0 * inf in the products) take the matrix form."""
+    v = float(x[IV])
+    psi = float(x[IPSI])
+    if not (math.isfinite(v) and math.isfinite(psi) and math.isfinite(dt)):
+        return _transition_matrices(x, dt)
+    c, s = math.cos(psi), math.sin(psi)
+    half_dt2 = 0.5 * dt * dt
+    a_x_psi, a_y_psi = -v * s, v * c
+    phi = np.eye(6)
+    # (0.0 + a dt) + 0.0: the identity's zero, then A @ A's (zero) entry, as the matrix sum adds them.
+    phi[IX, IPSI] = (0.0 + a_x_psi * dt) + 0.0
+    phi[IX, IV] = (0.0 + c * dt) + 0.0
+    phi[IY, IPSI] = (0.0 + a_y_psi * dt) + 0.0
+    phi[IY, IV] = (0.0 + s * dt) + 0.0
+    phi[IPSI, IW] = (0.0 + 1.0 * dt) + 0.0
+    phi[IV, IA] = (0.0 + 1.0 * dt) + 0.0
+    # A @ A: (x, w) = A[x, psi] A[psi, w], (x, a) = A[x, v] A[v, a], likewise for y.
+    phi[IX, IW] = 0.0 + (a_x_psi * 1.0) * half_dt2
+    phi[IX, IA] = 0.0 + (c * 1.0) * half_dt2
+    phi[IY, IW] = 0.0 + (a_y_psi * 1.0) * half_dt2
+    phi[IY, IA] = 0.0 + (s * 1.0) * half_dt2
+    return phi
 
 
 class VehicleTrack:
@@ -325,15 +364,18 @@ class VehicleTrack:
     def _predict(self, dt: float) -> tuple[FloatArray, FloatArray]:
         if dt <= 0.0:
             return self.x.copy(), self.P.copy()
-        x1 = self._mean_at(self.x, dt)
-        Phi = _transition(self.x, dt)
+        return self._mean_at(self.x, dt), self._covariance_at(self.x, self.P, dt)
+
+    def _covariance_at(self, x: FloatArray, P: FloatArray, dt: float) -> FloatArray:
+        """P propagated by dt > 0 from the state x (the linearisation point) and covariance P."""
+        Phi = _transition(x, dt)
         Q = np.zeros((6, 6))
         for node, weight in zip(_GL_NODES, _GL_WEIGHTS, strict=True):
             s = 0.5 * dt * (node + 1.0)
-            Ps = _transition(self.x, dt - s)
+            Ps = _transition(x, dt - s)
             Q += weight * (Ps @ self._GQG @ Ps.T)
         Q *= 0.5 * dt
-        return x1, Phi @ self.P @ Phi.T + Q
+        return Phi @ P @ Phi.T + Q
 
     def update(self, msg: VehicleMessage, t_rx_s: float) -> str:
         """Apply one message (already checked for order and age). Returns "ok", "frozen" or "reinit"."""
@@ -413,8 +455,13 @@ class VehicleTrack:
         """The state predicted to t_s (CYRA, speed cropped); health judged at t_now_s (default t_s)."""
         now = t_s if t_now_s is None else t_now_s
         p = self._cyra(np.asarray(t_s - self.t_s, dtype=np.float64))
-        _, P = self._predict(t_s - self.t_s)
-        pos_std = math.sqrt(max(float(np.linalg.eigvalsh(P[:2, :2])[-1]), 0.0))
+        dt = t_s - self.t_s
+        x, P0 = self.x, self.P  # an update replaces both arrays, never changes them in place
+
+        def position_std_m() -> float:
+            P = P0.copy() if dt <= 0.0 else self._covariance_at(x, P0, dt)
+            return math.sqrt(max(float(np.linalg.eigvalsh(P[:2, :2])[-1]), 0.0))
+
         return VehicleState(
             station_id=self.station_id,
             t_s=t_s,
@@ -426,9 +473,9 @@ class VehicleTrack:
             accel_mps2=float(p.accel_mps2),
             length_m=self.length_m,
             width_m=self.width_m,
-            position_std_m=pos_std,
             silent=self.silent(now),
             frozen=self.frozen,
+            position_std=position_std_m,
         )
 
     def _cyra(self, dt_s: FloatArray) -> CyraPrediction:
