@@ -327,6 +327,17 @@ class LaneMap:
         """Foot points of points xy (M, 2) on one given lane (e.g. a predicted trajectory)."""
         return _project_on(self.lane(lane_id), np.atleast_2d(np.asarray(xy, dtype=np.float64)))
 
+    def project_s(self, lane_id: int, x_m: float, y_m: float) -> float:
+        """`project(lane_id, [[x_m, y_m]]).s_m[0]`, bit for bit, without numpy for one point between the
+        lane's ends (the fusion's per-cycle question for every car on our lane)."""
+        lane = self.lane(lane_id)
+        x, y = float(x_m), float(y_m)
+        if math.isfinite(x) and math.isfinite(y):
+            s = lane.path.project_point_s(x, y)
+            if 0.0 < s < lane.path.length_m:  # `_project_on` extrapolates only a foot point on an end
+                return s
+        return float(self.project(lane_id, np.array([[x, y]])).s_m[0])
+
     def match(
         self, x_m: float, y_m: float, heading_rad: float | None = None, max_lateral_m: float | None = None
     ) -> LaneMatch | None:

@@ -376,8 +376,7 @@ class RadarFusion:
             lane = self._station_lane(st)
             if host_lane is None or lane != host_lane:
                 continue
-            proj = self.map.project(host_lane, np.array([[st.x_m, st.y_m]]))
-            s = float(proj.s_m[0])
+            s = self.map.project_s(host_lane, st.x_m, st.y_m)
             if s <= host_s:
                 continue
             cands.append(_Candidate(st, s, s - 0.5 * st.length_m - front_s))
