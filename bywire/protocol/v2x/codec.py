@@ -35,11 +35,14 @@ import bisect
 import collections
 import math
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Final
 
 import asn1tools
+
+from .fast_uper import Unsupported, compile_encoder
 
 # ---------------------------------------------------------------------------------------------- header
 
@@ -248,12 +251,32 @@ def asn1_decode(spec: Any, type_name: str, data: bytes, what: str) -> dict[str, 
     return value
 
 
-def asn1_encode(spec: Any, type_name: str, value: dict[str, Any], what: str) -> bytes:
-    """`spec.encode` with constraints checked; a value our builders let through is a V2xEncodeError."""
-    try:
-        data = bytes(spec.encode(type_name, value, check_constraints=True))
-    except (asn1tools.EncodeError, asn1tools.ConstraintsError) as e:
-        raise V2xEncodeError(what, str(e)) from None
+# (spec, type name) -> the spec and its `fast_uper` encoder (the spec kept: an id is unique while it lives)
+_FAST_ENCODERS: dict[tuple[int, str], tuple[Any, Callable[[Any], bytes]]] = {}
+
+
+def _fast_encoder(spec: Any, type_name: str) -> Callable[[Any], bytes]:
+    entry = _FAST_ENCODERS.get((id(spec), type_name))
+    if entry is None or entry[0] is not spec:
+        entry = (spec, compile_encoder(spec.types[type_name]))
+        _FAST_ENCODERS[(id(spec), type_name)] = entry
+    return entry[1]
+
+
+def asn1_encode(spec: Any, type_name: str, value: dict[str, Any], what: str, fast: bool = False) -> bytes:
+    """`spec.encode` with constraints checked; a value our builders let through is a V2xEncodeError.
+    `fast`: first `fast_uper`'s encoder, which gives asn1tools' bytes or leaves the value to it."""
+    data: bytes | None = None
+    if fast:
+        try:
+            data = _fast_encoder(spec, type_name)(value)
+        except Unsupported:
+            data = None
+    if data is None:
+        try:
+            data = bytes(spec.encode(type_name, value, check_constraints=True))
+        except (asn1tools.EncodeError, asn1tools.ConstraintsError) as e:
+            raise V2xEncodeError(what, str(e)) from None
     _ENCODED.remember(data, spec, type_name, value)
     return data
 

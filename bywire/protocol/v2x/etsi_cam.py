@@ -297,7 +297,7 @@ def cam_value(state: VehicleState, *, low_frequency: bool) -> dict[str, Any]:
 
 def encode_cam_value(value: dict[str, Any]) -> bytes:
     """An asn1tools CAM value (protocolVersion 2) -> UPER bytes."""
-    return asn1_encode(compiled(SchemaSet.CAM_V2), "CAM", value, "CAM")
+    return asn1_encode(compiled(SchemaSet.CAM_V2), "CAM", value, "CAM", fast=True)
 
 
 def encode_cam(state: VehicleState, *, low_frequency: bool = True) -> bytes:

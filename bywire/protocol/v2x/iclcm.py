@@ -209,7 +209,7 @@ def iclcm_value(msg: CooperativeState) -> dict[str, Any]:
 
 def encode_iclcm(msg: CooperativeState) -> bytes:
     """A CooperativeState -> the iCLCM we broadcast."""
-    return asn1_encode(compiled(SchemaSet.ICLCM), TYPE_NAME, iclcm_value(msg), "iCLCM")
+    return asn1_encode(compiled(SchemaSet.ICLCM), TYPE_NAME, iclcm_value(msg), "iCLCM", fast=True)
 
 
 def decode_iclcm(data: bytes, reference_time_s: float | None = None) -> CooperativeState:
