@@ -42,7 +42,7 @@ from typing import Any, Final
 
 import asn1tools
 
-from .fast_uper import Unsupported, compile_encoder
+from .fast_uper import Unsupported, compile_decoder, compile_encoder
 
 # ---------------------------------------------------------------------------------------------- header
 
@@ -238,8 +238,29 @@ def header_value(message_id: int, protocol_version: int, owner: str, station_id:
     }
 
 
-def asn1_decode(spec: Any, type_name: str, data: bytes, what: str) -> dict[str, Any]:
-    """`spec.decode(type_name, data)`, every asn1tools failure a V2xDecodeError naming `what`."""
+# (spec, type name) -> the spec and its `fast_uper` encoder or decoder (the spec kept: its id is
+# unique while it lives)
+_FAST_ENCODERS: dict[tuple[int, str], tuple[Any, Callable[[Any], bytes]]] = {}
+_FAST_DECODERS: dict[tuple[int, str], tuple[Any, Callable[[bytes], Any]]] = {}
+
+
+def _fast_decoder(spec: Any, type_name: str) -> Callable[[bytes], Any]:
+    entry = _FAST_DECODERS.get((id(spec), type_name))
+    if entry is None or entry[0] is not spec:
+        entry = (spec, compile_decoder(spec.types[type_name]))
+        _FAST_DECODERS[(id(spec), type_name)] = entry
+    return entry[1]
+
+
+def asn1_decode(spec: Any, type_name: str, data: bytes, what: str, fast: bool = False) -> dict[str, Any]:
+    """`spec.decode(type_name, data)`, every asn1tools failure a V2xDecodeError naming `what`.
+    `fast`: first `fast_uper`'s decoder, which gives asn1tools' value or leaves the datagram to it."""
+    if fast:
+        try:
+            fast_value: dict[str, Any] = _fast_decoder(spec, type_name)(data)
+            return fast_value
+        except Unsupported:
+            pass
     try:
         value = spec.decode(type_name, data, check_constraints=True)
     except (asn1tools.DecodeError, asn1tools.ConstraintsError) as e:
@@ -249,10 +270,6 @@ def asn1_decode(spec: Any, type_name: str, data: bytes, what: str) -> dict[str, 
     if not isinstance(value, dict):
         raise V2xDecodeError(DecodeReason.DECODER_FAULT, f"{what}: decoder returned {type(value).__name__}")
     return value
-
-
-# (spec, type name) -> the spec and its `fast_uper` encoder (the spec kept: an id is unique while it lives)
-_FAST_ENCODERS: dict[tuple[int, str], tuple[Any, Callable[[Any], bytes]]] = {}
 
 
 def _fast_encoder(spec: Any, type_name: str) -> Callable[[Any], bytes]:

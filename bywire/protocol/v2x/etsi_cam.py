@@ -323,7 +323,9 @@ def decode_etsi_cam(
                 f"{sorted(SCHEMA_BY_PROTOCOL_VERSION)}",
             )
         schema = chosen
-    value = asn1_decode(compiled_etsi_spec(schema, directory), "CAM", frame, f"CAM ({schema.value})")
+    value = asn1_decode(
+        compiled_etsi_spec(schema, directory), "CAM", frame, f"CAM ({schema.value})", fast=True
+    )
     return schema, value
 
 

@@ -216,7 +216,7 @@ def decode_iclcm(data: bytes, reference_time_s: float | None = None) -> Cooperat
     """An iCLCM -> CooperativeState (reference_time_s resolves GenerationDeltaTime; None: now)."""
     data = bytes(data)
     spec = compiled(SchemaSet.ICLCM)
-    value = asn1_decode(spec, TYPE_NAME, data, "iCLCM")
+    value = asn1_decode(spec, TYPE_NAME, data, "iCLCM", fast=True)
     try:
         header = value["itsHeader"]
         if header["messageID"] != MSG_ICLCM or header["protocolVersion"] != ICLCM_PROTOCOL_VERSION:

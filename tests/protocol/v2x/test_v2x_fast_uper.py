@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from bywire.protocol.v2x.codec import V2xEncodeError, asn1_encode
 from bywire.protocol.v2x.etsi_cam import cam_value
-from bywire.protocol.v2x.fast_uper import Unsupported, compile_encoder
+from bywire.protocol.v2x.fast_uper import Unsupported, compile_decoder, compile_encoder
 from bywire.protocol.v2x.iclcm import TYPE_NAME as ICLCM
 from bywire.protocol.v2x.iclcm import iclcm_value
 from bywire.protocol.v2x.schemas import SchemaSet, compiled
@@ -183,3 +183,87 @@ def test_asn1_encode_refuses_what_asn1tools_refuses_with_its_message() -> None:
         CAM_SPEC.encode("CAM", bad, check_constraints=True)
     assert str(fast.value) == f"CAM: {reference.value}"
     assert asn1_encode(CAM_SPEC, "CAM", value, "CAM", fast=True) == asn1_encode(CAM_SPEC, "CAM", value, "CAM")
+
+
+# ---------------------------------------------------------------------------------------------- decoding
+
+FAST_CAM_DECODE = compile_decoder(CAM_SPEC.types["CAM"])
+FAST_ICLCM_DECODE = compile_decoder(ICLCM_SPEC.types[ICLCM])
+
+
+def _decoded(spec: Any, type_name: str, data: bytes) -> Any:
+    """asn1tools' value as `repr` writes it (types and member order count), None where it refuses."""
+    try:
+        return repr(spec.decode(type_name, data, check_constraints=True))
+    except Exception:
+        return None
+
+
+def _decodes_alike(fast: Any, spec: Any, type_name: str, data: bytes) -> bool:
+    """Whether the fast decoder decoded `data` (rather than leaving it to asn1tools); asserts that what it
+    decoded is asn1tools' value."""
+    reference = _decoded(spec, type_name, data)
+    try:
+        mine = fast(data)
+    except Unsupported:
+        return False
+    assert reference is not None, "decoded a datagram asn1tools refuses"
+    assert repr(mine) == reference
+    return True
+
+
+def _flipped(data: bytes, draw: Callable[..., Any]) -> bytes:
+    kind = draw(st.sampled_from(["flip", "flip", "append", "cut", "random"]))
+    if kind == "append":
+        return data + draw(st.binary(min_size=1, max_size=3))
+    if kind == "cut":
+        return data[: draw(st.integers(0, max(len(data) - 1, 0)))]
+    if kind == "random":
+        return draw(st.binary(max_size=len(data) + 4))
+    b = bytearray(data)
+    for _ in range(draw(st.integers(1, 3))):
+        i = draw(st.integers(0, 8 * len(b) - 1))
+        b[i // 8] ^= 0x80 >> (i % 8)
+    return bytes(b)
+
+
+@given(st.data(), vehicle_states(), st.booleans())
+@settings(max_examples=400, deadline=None)
+def test_cam_datagrams_decode_to_asn1tools_values(
+    data: st.DataObject, state: Any, low_frequency: bool
+) -> None:
+    sent = FAST_CAM(_cam(state, low_frequency))
+    assert _decodes_alike(FAST_CAM_DECODE, CAM_SPEC, "CAM", sent)  # ours: always decoded here
+    _decodes_alike(FAST_CAM_DECODE, CAM_SPEC, "CAM", _flipped(sent, data.draw))
+
+
+@given(st.data(), cooperative_states)
+@settings(max_examples=400, deadline=None)
+def test_iclcm_datagrams_decode_to_asn1tools_values(data: st.DataObject, msg: Any) -> None:
+    try:
+        sent = FAST_ICLCM(iclcm_value(msg))
+    except V2xEncodeError:
+        assume(False)
+        raise
+    assert _decodes_alike(FAST_ICLCM_DECODE, ICLCM_SPEC, ICLCM, sent)
+    _decodes_alike(FAST_ICLCM_DECODE, ICLCM_SPEC, ICLCM, _flipped(sent, data.draw))
+
+
+def test_asn1_decode_with_the_fast_path_gives_the_same_values_and_errors() -> None:
+    from bywire.protocol.v2x.codec import V2xDecodeError, VehicleState, asn1_decode
+
+    sent = asn1_encode(
+        CAM_SPEC,
+        "CAM",
+        cam_value(VehicleState(7, 1.5e9, 52.0, 5.0, 0.3, 10.0, 0.01, 0.5, 4.5, 1.8), low_frequency=True),
+        "CAM",
+    )
+    assert repr(asn1_decode(CAM_SPEC, "CAM", sent, "CAM", fast=True)) == repr(
+        asn1_decode(CAM_SPEC, "CAM", sent, "CAM")
+    )
+    for bad in (sent[:9], sent[:6] + b"\xff" * 30):
+        with pytest.raises(V2xDecodeError) as fast:
+            asn1_decode(CAM_SPEC, "CAM", bad, "CAM", fast=True)
+        with pytest.raises(V2xDecodeError) as reference:
+            asn1_decode(CAM_SPEC, "CAM", bad, "CAM")
+        assert (fast.value.reason, str(fast.value)) == (reference.value.reason, str(reference.value))
