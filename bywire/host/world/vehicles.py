@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from bywire.host.geo import LocalFrame, wrap_angle, wrap_angles
+from bywire.host.geo import TWO_PI, LocalFrame, wrap_angle, wrap_angles
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -160,6 +160,80 @@ def cyra_predict(
         heading_rad=wrap_angles(np.asarray(psi, dtype=np.float64)),
         speed_mps=np.where(in_phase1, v0 + a * T1, v_lim),
         accel_mps2=np.where(in_phase1, a, 0.0),
+    )
+
+
+def _arc_integrals_scalar(v0: float, a: float, psi0: float, w: float, T: float) -> tuple[float, float]:
+    """`_arc_integrals` for one time, as Python floats: the same operations in the same order (IEEE
+    arithmetic is the same on Python floats as on numpy's), and numpy's own cos, sin and powers, called
+    on the same 0-d operands as the array form (numpy's pow differs from the C library's)."""
+    c0, s0 = float(np.cos(psi0)), float(np.sin(psi0))
+    if not abs(w * T) < SERIES_LIMIT:
+        ve = v0 + a * T
+        ce, se = float(np.cos(psi0 + w * T)), float(np.sin(psi0 + w * T))
+        return (
+            (ve * se - v0 * s0) / w + a * (ce - c0) / (w * w),
+            (-ve * ce + v0 * c0) / w + a * (se - s0) / (w * w),
+        )
+    t = np.asarray(T, dtype=np.float64)
+    t2, t3, t4 = float(t**2), float(t**3), float(t**4)
+    m0 = v0 * T + 0.5 * a * t2
+    m1 = 0.5 * v0 * t2 + a * t3 / 3.0
+    m2 = v0 * t3 / 3.0 + 0.25 * a * t4
+    return (
+        c0 * m0 - s0 * w * m1 - 0.5 * c0 * w * w * m2,
+        s0 * m0 + c0 * w * m1 - 0.5 * s0 * w * w * m2,
+    )
+
+
+def cyra_predict_scalar(
+    x_m: float,
+    y_m: float,
+    heading_rad: float,
+    speed_mps: float,
+    yaw_rate_radps: float,
+    accel_mps2: float,
+    dt_s: float,
+    speed_max_mps: float = 130.0 * KMH_TO_MPS,
+) -> tuple[float, float, float, float, float]:
+    """`cyra_predict` at one time: (x, y, heading, speed, acceleration), bit for bit the same (tests hold
+    it to that). The filter asks this of every track at every message and every cycle; on 0-d arrays
+    each of its few dozen numpy operations cost a microsecond. A non-finite input takes the array form."""
+    values = (x_m, y_m, heading_rad, speed_mps, yaw_rate_radps, accel_mps2, dt_s, speed_max_mps)
+    if not all(math.isfinite(v) for v in values):
+        p = cyra_predict(*values)
+        return float(p.x_m), float(p.y_m), float(p.heading_rad), float(p.speed_mps), float(p.accel_mps2)
+    t = dt_s if dt_s > 0.0 else 0.0  # np.maximum(dt, 0.0); dt is never -0.0 (a difference of times)
+    v0 = min(max(speed_mps, 0.0), speed_max_mps)
+    a, w = accel_mps2, yaw_rate_radps
+    if a > 0.0:
+        t_lim, v_lim = (speed_max_mps - v0) / a, speed_max_mps
+    elif a < 0.0:
+        t_lim, v_lim = -v0 / a, 0.0
+    else:
+        t_lim, v_lim = math.inf, v0
+    T1 = t if t <= t_lim else t_lim
+    ic1, is1 = _arc_integrals_scalar(v0, a, heading_rad, w, T1)
+    T2 = t - T1
+    psi1 = heading_rad + w * T1
+    if not T2 > 0.0:
+        ic2 = is2 = 0.0
+        psi = psi1
+    elif v_lim > 0.0:
+        ic2, is2 = _arc_integrals_scalar(v_lim, 0.0, psi1, w, T2)
+        psi = psi1 + w * T2
+    else:
+        ic2 = is2 = 0.0
+        psi = psi1
+    if v0 == 0.0 and a <= 0.0:
+        psi = heading_rad
+    in_phase1 = t < t_lim
+    return (
+        x_m + ic1 + ic2,
+        y_m + is1 + is2,
+        (psi + math.pi) % TWO_PI - math.pi,
+        v0 + a * T1 if in_phase1 else v_lim,
+        a if in_phase1 else 0.0,
     )
 
 
@@ -355,11 +429,11 @@ class VehicleTrack:
     def _mean_at(self, x: FloatArray, dt: float) -> FloatArray:
         """Mean after dt: CYRA for position, heading and speed; yaw rate and acceleration held (the next
         message corrects them; cropping them here would lose the sender's intent)."""
-        p = cyra_predict(
+        px, py, ph, pv, _ = cyra_predict_scalar(
             float(x[IX]), float(x[IY]), float(x[IPSI]), float(x[IV]), float(x[IW]), float(x[IA]),
-            dt, self.cfg.speed_max_mps,
+            float(dt), self.cfg.speed_max_mps,
         )  # fmt: skip
-        return np.array([float(p.x_m), float(p.y_m), float(p.heading_rad), float(p.speed_mps), x[IW], x[IA]])
+        return np.array([px, py, ph, pv, x[IW], x[IA]])
 
     def _predict(self, dt: float) -> tuple[FloatArray, FloatArray]:
         if dt <= 0.0:
@@ -454,8 +528,12 @@ class VehicleTrack:
     def state_at(self, t_s: float, t_now_s: float | None = None) -> VehicleState:
         """The state predicted to t_s (CYRA, speed cropped); health judged at t_now_s (default t_s)."""
         now = t_s if t_now_s is None else t_now_s
-        p = self._cyra(np.asarray(t_s - self.t_s, dtype=np.float64))
         dt = t_s - self.t_s
+        sx = self.x
+        px, py, ph, pv, pa = cyra_predict_scalar(
+            float(sx[IX]), float(sx[IY]), float(sx[IPSI]), float(sx[IV]), float(sx[IW]), float(sx[IA]),
+            float(dt), self.cfg.speed_max_mps,
+        )  # fmt: skip
         x, P0 = self.x, self.P  # an update replaces both arrays, never changes them in place
 
         def position_std_m() -> float:
@@ -465,12 +543,12 @@ class VehicleTrack:
         return VehicleState(
             station_id=self.station_id,
             t_s=t_s,
-            x_m=float(p.x_m),
-            y_m=float(p.y_m),
-            heading_rad=float(p.heading_rad),
-            speed_mps=float(p.speed_mps),
-            yaw_rate_radps=float(self.x[IW]) if float(p.speed_mps) > 0.0 else 0.0,
-            accel_mps2=float(p.accel_mps2),
+            x_m=px,
+            y_m=py,
+            heading_rad=ph,
+            speed_mps=pv,
+            yaw_rate_radps=float(self.x[IW]) if pv > 0.0 else 0.0,
+            accel_mps2=pa,
             length_m=self.length_m,
             width_m=self.width_m,
             silent=self.silent(now),

@@ -1,5 +1,6 @@
 """The world model's fast paths, held bit for bit to the forms they replace (SIL must replay exactly):
-the CYRA transition matrix written out entry by entry against its matrix products, a vehicle state's
+the CYRA prediction at one time on Python floats against its array form, the CYRA transition matrix
+written out entry by entry against its matrix products, a vehicle state's
 lazily computed position 1-sigma against the covariance prediction done at once, and the scalar
 foot-point arc length against the vectorised projection."""
 
@@ -20,6 +21,8 @@ from bywire.host.world.vehicles import (
     VehicleTrack,
     _transition,
     _transition_matrices,
+    cyra_predict,
+    cyra_predict_scalar,
 )
 
 FRAME = LocalFrame(51.4708, 5.6230)
@@ -121,3 +124,32 @@ def test_scalar_arc_length_of_a_vertex_and_a_non_finite_point() -> None:
         lane_map.project(0, np.array([[math.nan, 0.0]]))
     with pytest.raises(ValueError, match="finite"):
         lane_map.project_s(0, math.nan, 0.0)
+
+
+@settings(max_examples=1500, deadline=None)
+@given(
+    st.floats(-1e5, 1e5),
+    st.floats(-1e5, 1e5),
+    st.one_of(st.floats(-7.0, 7.0), st.sampled_from([0.0, math.pi, -math.pi, 0.5 * math.pi])),
+    st.one_of(st.floats(-1.0, 60.0), st.sampled_from([0.0, 36.0, 130.0 / 3.6])),
+    st.one_of(st.floats(-1.0, 1.0), st.floats(-1e-4, 1e-4), st.just(0.0)),
+    st.one_of(st.floats(-9.0, 5.0), st.just(0.0)),
+    st.one_of(st.floats(-0.5, 12.0), st.just(0.0), st.floats(0.0, 1e-3)),
+    st.sampled_from([130.0 / 3.6, 27.0, 36.0]),
+)
+def test_scalar_cyra_equals_the_array_form(
+    x: float, y: float, psi: float, v: float, w: float, a: float, dt: float, v_max: float
+) -> None:
+    p = cyra_predict(x, y, psi, v, w, a, np.asarray(dt, dtype=np.float64), v_max)
+    expected = (p.x_m, p.y_m, p.heading_rad, p.speed_mps, p.accel_mps2)
+    got = cyra_predict_scalar(x, y, psi, v, w, a, dt, v_max)
+    assert [float(e).hex() for e in expected] == [g.hex() for g in got]
+
+
+def test_scalar_cyra_with_a_non_finite_input_takes_the_array_form() -> None:
+    with np.errstate(invalid="ignore"):
+        got = cyra_predict_scalar(0.0, 0.0, 0.0, 10.0, math.nan, 0.0, 1.0)
+        p = cyra_predict(0.0, 0.0, 0.0, 10.0, math.nan, 0.0, np.asarray(1.0))
+    assert np.array_equal(
+        np.array(got), np.array([p.x_m, p.y_m, p.heading_rad, p.speed_mps, p.accel_mps2]), equal_nan=True
+    )
