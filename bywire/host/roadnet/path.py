@@ -263,6 +263,28 @@ class Path:
             h0 = float(self._heading[0])
             lat = -math.sin(h0) * (px - self._x[0]) + math.cos(h0) * (py - self._y[0])
             return np.zeros_like(px), lat, np.full_like(px, wrap_angle(h0))
+        s, i, tb, x0, y0, dx, dy, rows, j = self._feet(px, py)
+        h = self._heading[i] + tb * (self._heading[i + 1] - self._heading[i])
+        fx, fy = x0[rows, j] + tb * dx[rows, j], y0[rows, j] + tb * dy[rows, j]
+        lateral = -np.sin(h) * (px - fx) + np.cos(h) * (py - fy)
+        return s, lateral, (h + np.pi) % (2.0 * np.pi) - np.pi
+
+    def project_points_s(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> FloatArray:
+        """`project_points`' arc lengths alone (the same computation, stopped there)."""
+        px = np.atleast_1d(np.asarray(x_m, dtype=np.float64))
+        py = np.atleast_1d(np.asarray(y_m, dtype=np.float64))
+        if len(self) == 1:
+            return np.zeros_like(px)
+        return self._feet(px, py)[0]
+
+    def _feet(
+        self, px: FloatArray, py: FloatArray
+    ) -> tuple[
+        FloatArray, IntArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, IntArray, IntArray
+    ]:
+        """Foot points of many points (n >= 2 samples): s, segment, fraction along it, the candidate
+        segments' starts and directions, and the rows and columns of the chosen ones."""
+        n = len(self)
         if self._tree is None:
             self._tree = cKDTree(self.xy)
         _, idx = self._tree.query(np.column_stack((px, py)), k=min(8, n))
@@ -279,10 +301,7 @@ class Path:
         rows = np.arange(px.size)
         i, tb = seg[rows, j], t[rows, j]
         s = self._s[i] + tb * (self._s[i + 1] - self._s[i])
-        h = self._heading[i] + tb * (self._heading[i + 1] - self._heading[i])
-        fx, fy = x0[rows, j] + tb * dx[rows, j], y0[rows, j] + tb * dy[rows, j]
-        lateral = -np.sin(h) * (px - fx) + np.cos(h) * (py - fy)
-        return s, lateral, (h + np.pi) % (2.0 * np.pi) - np.pi
+        return s, i, tb, x0, y0, dx, dy, rows, j
 
     def project_point_s(self, x_m: float, y_m: float) -> float:
         """`project_points(x_m, y_m)`'s arc length for one point, bit for bit (tests hold it to that).

@@ -129,6 +129,9 @@ class Lane:
     points_m: FloatArray  # (N, 2) vertices, 0.5 m apart
     path: LanePath = field(init=False, repr=False, compare=False)
     xy_list: list[tuple[float, float]] = field(init=False, repr=False, compare=False)
+    # ("start" | "end", unit direction of the end segment, its anchor point): what `_project_on`
+    # extrapolates along past the lane's ends, worked out once.
+    ends: tuple[tuple[str, FloatArray, FloatArray], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pts = np.ascontiguousarray(self.points_m, dtype=np.float64)
@@ -149,6 +152,10 @@ class Lane:
         object.__setattr__(self, "path", path)
         # Python floats for the scalar projection: indexing a numpy array per element costs ~10x more.
         object.__setattr__(self, "xy_list", [(float(a), float(b)) for a, b in pts])
+        ends = []
+        for end, (a, b) in (("start", (pts[0], pts[1])), ("end", (pts[-2], pts[-1]))):
+            ends.append((end, (b - a) / np.hypot(*(b - a)), a if end == "start" else b))
+        object.__setattr__(self, "ends", tuple(ends))
 
     @property
     def s_m(self) -> FloatArray:
@@ -185,11 +192,8 @@ def _project_on(lane: Lane, xy: FloatArray) -> Projection:
     s = np.asarray(s, dtype=np.float64)
     lateral = np.asarray(lateral, dtype=np.float64)
     heading = np.asarray(heading, dtype=np.float64)
-    pts = lane.points_m
     beyond = np.zeros(len(xy), dtype=bool)
-    for end, (a, b) in (("start", (pts[0], pts[1])), ("end", (pts[-2], pts[-1]))):
-        u = (b - a) / np.hypot(*(b - a))
-        anchor = a if end == "start" else b
+    for end, u, anchor in lane.ends:
         along = (xy - anchor) @ u
         hit = along < 0.0 if end == "start" else along > 0.0
         hit &= (s <= 0.0) if end == "start" else (s >= path.length_m)
@@ -326,6 +330,21 @@ class LaneMap:
     def project(self, lane_id: int, xy: FloatArray) -> Projection:
         """Foot points of points xy (M, 2) on one given lane (e.g. a predicted trajectory)."""
         return _project_on(self.lane(lane_id), np.atleast_2d(np.asarray(xy, dtype=np.float64)))
+
+    def project_s_many(self, lane_id: int, xy: FloatArray) -> FloatArray:
+        """`project(lane_id, xy).s_m`, bit for bit, without the lateral offsets, headings and foot
+        points (the fusion's predicted trajectories, every cycle, need the arc lengths alone)."""
+        lane = self.lane(lane_id)
+        pts = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+        path = lane.path
+        s = np.asarray(path.project_points_s(pts[:, 0], pts[:, 1]), dtype=np.float64)
+        for end, u, anchor in lane.ends:
+            along = (pts - anchor) @ u
+            hit = along < 0.0 if end == "start" else along > 0.0
+            hit &= (s <= 0.0) if end == "start" else (s >= path.length_m)
+            if np.any(hit):
+                s[hit] = along[hit] + (0.0 if end == "start" else path.length_m)
+        return s
 
     def project_s(self, lane_id: int, x_m: float, y_m: float) -> float:
         """`project(lane_id, [[x_m, y_m]]).s_m[0]`, bit for bit, without numpy for one point between the

@@ -462,8 +462,8 @@ class RadarFusion:
         grid = c.grid_s
         traj = vehicles.predict_trajectory(cd.state.station_id, t_s + grid, t_now_s=t_s)
         assert traj is not None and host_lane is not None  # candidates exist only on our known lane
-        proj = self.map.project(host_lane, np.column_stack((traj.x_m, traj.y_m)))
-        positions = proj.s_m - 0.5 * cd.state.length_m - front_s
+        s_m = self.map.project_s_many(host_lane, np.column_stack((traj.x_m, traj.y_m)))
+        positions = s_m - 0.5 * cd.state.length_m - front_s
         conf = Confidence.LOW if cd.state.low_confidence else Confidence.MEDIUM
         return LeadEstimate(
             station_id=cd.state.station_id,

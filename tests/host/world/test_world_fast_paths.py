@@ -153,3 +153,22 @@ def test_scalar_cyra_with_a_non_finite_input_takes_the_array_form() -> None:
     assert np.array_equal(
         np.array(got), np.array([p.x_m, p.y_m, p.heading_rad, p.speed_mps, p.accel_mps2]), equal_nan=True
     )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(0, len(_MAPS) - 1),
+    st.integers(0, 1),
+    st.lists(st.tuples(st.floats(-40.0, 340.0), st.floats(-8.0, 8.0)), min_size=1, max_size=60),
+)
+def test_arc_lengths_alone_equal_the_full_projection(
+    which: int, lane_id: int, points: list[tuple[float, float]]
+) -> None:
+    """A predicted trajectory's arc lengths (before the start and past the end too)."""
+    lane_map = _MAPS[which]
+    xy = np.array([(along, side + 0.1 * along) for along, side in points])
+    assert _bits(lane_map.project_s_many(lane_id, xy)) == _bits(lane_map.project(lane_id, xy).s_m)
+    path = lane_map.lane(lane_id).path
+    assert _bits(path.project_points_s(xy[:, 0], xy[:, 1])) == _bits(
+        path.project_points(xy[:, 0], xy[:, 1])[0]
+    )
