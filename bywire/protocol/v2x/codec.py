@@ -363,14 +363,25 @@ def remember_own_encodings(enabled: bool = True) -> None:
         _ENCODED.clear()
 
 
-def check_canonical(spec: Any, type_name: str, value: dict[str, Any], data: bytes, what: str) -> None:
+def check_canonical(
+    spec: Any, type_name: str, value: dict[str, Any], data: bytes, what: str, fast: bool = False
+) -> None:
     """The datagram must be exactly the UPER encoding of what it decoded to: asn1tools ignores trailing
     bytes, non-zero padding and extension additions it does not know, so a datagram with bytes appended,
-    flipped padding bits or unknown extensions is refused (NON_CANONICAL) rather than taken as another."""
+    flipped padding bits or unknown extensions is refused (NON_CANONICAL) rather than taken as another.
+    `fast`: re-encode with `fast_uper` where it can (its bytes are asn1tools' with its constraints
+    checked, which asn1tools without the check gives too)."""
     if _ENCODED.known(data, spec, type_name, value):
         return
+    again: bytes | None = None
+    if fast:
+        try:
+            again = _fast_encoder(spec, type_name)(value)
+        except Unsupported:
+            again = None
     try:
-        again = bytes(spec.encode(type_name, value))
+        if again is None:
+            again = bytes(spec.encode(type_name, value))
     except Exception as e:  # a decoded value that does not encode again: the decoder let garbage through
         raise V2xDecodeError(DecodeReason.NON_CANONICAL, f"{what}: does not encode again ({e})") from None
     if again != data:

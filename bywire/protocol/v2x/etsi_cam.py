@@ -404,7 +404,7 @@ def from_etsi_cam(
             },
         )
         if canonical:
-            check_canonical(compiled_etsi_spec(used, directory), "CAM", cam, frame_bytes, what)
+            check_canonical(compiled_etsi_spec(used, directory), "CAM", cam, frame_bytes, what, fast=True)
         length_m = scaled_from_etsi(length, LENGTH_UNAVAILABLE, 10.0)
         if lat is not None and lon is not None and heading != HEADING_UNAVAILABLE and length_m is not None:
             lat, lon = _shift_along(lat, lon, heading, -0.5 * length_m)

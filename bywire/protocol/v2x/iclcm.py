@@ -224,7 +224,7 @@ def decode_iclcm(data: bytes, reference_time_s: float | None = None) -> Cooperat
                 DecodeReason.UNKNOWN_MESSAGE,
                 f"iCLCM: header messageID {header['messageID']}, protocolVersion {header['protocolVersion']}",
             )
-        check_canonical(spec, TYPE_NAME, value, data, "iCLCM")
+        check_canonical(spec, TYPE_NAME, value, data, "iCLCM", fast=True)
         body = value["iclcm"]
         p = body["iclcmParameters"]
         hf = p["vehicleContainerHighFrequency"]

@@ -267,3 +267,25 @@ def test_asn1_decode_with_the_fast_path_gives_the_same_values_and_errors() -> No
         with pytest.raises(V2xDecodeError) as reference:
             asn1_decode(CAM_SPEC, "CAM", bad, "CAM")
         assert (fast.value.reason, str(fast.value)) == (reference.value.reason, str(reference.value))
+
+
+CAM_V1_SPEC = compiled(SchemaSet.CAM_V1)
+FAST_CAM_V1 = compile_encoder(CAM_V1_SPEC.types["CAM"])
+FAST_CAM_V1_DECODE = compile_decoder(CAM_V1_SPEC.types["CAM"])
+
+
+@given(st.data(), vehicle_states(), st.booleans())
+@settings(max_examples=300, deadline=None)
+def test_protocol_version_1_cams_decode_and_encode_as_asn1tools_does(
+    data: st.DataObject, state: Any, low_frequency: bool
+) -> None:
+    """The older CAM schema a receiver also reads: our CAM's value in version 1, encoded by asn1tools,
+    then altered or not."""
+    value = _cam(state, low_frequency)
+    value["header"]["protocolVersion"] = 1
+    sent = _reference(CAM_V1_SPEC, "CAM", value)
+    assert sent is not None and FAST_CAM_V1(value) == sent
+    assert _decodes_alike(FAST_CAM_V1_DECODE, CAM_V1_SPEC, "CAM", sent)
+    altered = _flipped(sent, data.draw)
+    if _decodes_alike(FAST_CAM_V1_DECODE, CAM_V1_SPEC, "CAM", altered):
+        _agrees(FAST_CAM_V1, CAM_V1_SPEC, "CAM", CAM_V1_SPEC.decode("CAM", altered))
