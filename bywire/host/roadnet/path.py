@@ -320,7 +320,7 @@ class Path:
         xs, ys, ss = self._lists
         px, py = float(x_m), float(y_m)
         _, idx = self._tree.query(np.array(((px, py),)), k=min(8, n))
-        near = np.asarray(idx).reshape(-1).tolist()
+        near = idx[0].tolist()  # one row of k indexes (k >= 2 here)
         last = n - 2
         best_d2 = math.inf
         best_i, best_t = -1, 0.0
