@@ -381,6 +381,24 @@ def _transition(x: FloatArray, dt: float) -> FloatArray:
     return phi
 
 
+_MEASUREMENT_MATRICES: dict[tuple[tuple[int, ...], tuple[float, ...]], tuple[FloatArray, FloatArray]] = {}
+
+
+def _measurement_matrices(rows: tuple[int, ...], r: tuple[float, ...]) -> tuple[FloatArray, FloatArray]:
+    """H (which state components a message measured) and R (their variances): a handful of
+    combinations, built once each (read-only: every update shares them)."""
+    key = (rows, r)
+    found = _MEASUREMENT_MATRICES.get(key)
+    if found is None:
+        H = np.zeros((len(rows), 6))
+        H[np.arange(len(rows)), list(rows)] = 1.0
+        R = np.diag(r)
+        H.setflags(write=False)
+        R.setflags(write=False)
+        found = _MEASUREMENT_MATRICES[key] = (H, R)
+    return found
+
+
 class VehicleTrack:
     """One station's filter, health and prediction."""
 
@@ -497,10 +515,8 @@ class VehicleTrack:
             rows.append(IA)
             z.append(msg.accel_mps2)
             r.append(c.accel_std_mps2**2)
-        H = np.zeros((len(rows), 6))
-        H[np.arange(len(rows)), rows] = 1.0
+        H, R = _measurement_matrices(tuple(rows), tuple(r))
         nu_all = np.asarray(z) - x[rows]
-        R = np.diag(r)
         S_all = H @ P @ H.T + R
         K = np.linalg.solve(S_all, H @ P).T
         x = x + K @ nu_all
