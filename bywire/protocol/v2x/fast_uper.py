@@ -213,9 +213,12 @@ def _build(t: Any) -> NodeEncoder:
     return _unsupported  # octet and character strings, SET, open and recursive types: asn1tools
 
 
-def compile_encoder(compiled_type: Any) -> Callable[[Any], bytes]:
+def compile_encoder(compiled_type: Any, generated: bool = True) -> Callable[[Any], bytes]:
     """An encoder for one asn1tools UPER `CompiledType` (`spec.types[name]`); it raises `Unsupported`
-    for any value it leaves to asn1tools."""
+    for any value it leaves to asn1tools. `generated`: as one generated function (see the end of this
+    module), else as the tree of closures."""
+    if generated:
+        return _generated_encoder(compiled_type.type)
     root = _build(compiled_type.type)
 
     def encode(value: Any) -> bytes:
@@ -407,13 +410,234 @@ def _build_decoder(t: Any) -> NodeDecoder:
     return _undecodable
 
 
-def compile_decoder(compiled_type: Any) -> Callable[[bytes], Any]:
+def compile_decoder(compiled_type: Any, generated: bool = True) -> Callable[[bytes], Any]:
     """A decoder for one asn1tools UPER `CompiledType`; it raises `Unsupported` for any datagram it
-    leaves to asn1tools (trailing bytes it ignores, as asn1tools does: the canonical check's business)."""
+    leaves to asn1tools (trailing bytes it ignores, as asn1tools does: the canonical check's business).
+    `generated`: as one generated function, else as the tree of closures."""
+    if generated:
+        return _generated_decoder(compiled_type.type)
     root = _build_decoder(compiled_type.type)
 
     def decode(data: bytes) -> Any:
         value, _ = root(int.from_bytes(data, "big"), 8 * len(data), 0)
         return value
 
+    return decode
+
+
+# ---------------------------------------------------------------------------------------- generated code
+#
+# The closures above cost a call, a tuple and its unpacking per node. For the SEQUENCE, CHOICE, INTEGER,
+# ENUMERATED and BOOLEAN nodes (nearly all of a CAM's) the same checks and bits are written out as one
+# straight-line function per message type; BIT STRING and SEQUENCE OF nodes call their closures.
+
+
+class _Source:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.names: dict[str, Any] = {"Unsupported": Unsupported}
+        self._count = 0
+
+    def fresh(self, stem: str) -> str:
+        self._count += 1
+        return f"{stem}{self._count}"
+
+    def const(self, value: Any, stem: str = "k") -> str:
+        name = self.fresh(stem)
+        self.names[name] = value
+        return name
+
+    def emit(self, depth: int, line: str) -> None:
+        self.lines.append("    " * depth + line)
+
+    def compile(self, name: str) -> Any:
+        code = "\n".join(self.lines)
+        namespace = dict(self.names)
+        exec(compile(code, f"<fast_uper {name}>", "exec"), namespace)  # our own generated source
+        return namespace[name]
+
+
+def _emit_bits(src: _Source, depth: int, expr: str, nbits: int) -> None:
+    if nbits:
+        src.emit(depth, f"v = (v << {nbits}) | ({expr}); n += {nbits}")
+
+
+def _gen_encode(src: _Source, t: Any, x: str, depth: int) -> None:
+    """Code that checks the value in variable `x` and appends its bits to (v, n)."""
+    if isinstance(t, uper.Integer) and t.number_of_bits is not None:
+        lo, hi = t.minimum, t.maximum
+        nbits = t.number_of_bits + (1 if t.has_extension_marker else 0)
+        src.emit(depth, f"if type({x}) is not int or not {lo} <= {x} <= {hi}: raise Unsupported")
+        _emit_bits(src, depth, f"{x} - {lo}", nbits)
+        return
+    if isinstance(t, per.Boolean):
+        src.emit(depth, f"if type({x}) is not bool: raise Unsupported")
+        _emit_bits(src, depth, f"{x}", 1)
+        return
+    if isinstance(t, per.Enumerated):
+        index = src.const(dict(t.root_data_to_index), "idx")
+        nbits = t.root_number_of_bits + (0 if t.additions_index_to_data is None else 1)
+        i = src.fresh("i")
+        src.emit(depth, f"{i} = {index}.get({x}) if type({x}) is str else None")
+        src.emit(depth, f"if {i} is None: raise Unsupported")
+        _emit_bits(src, depth, i, nbits)
+        return
+    if isinstance(t, per.Choice) and t.number_of_indefinite_bits is None:
+        ext = 0 if t.additions_index_to_member is None else 1
+        index_bits = t.root_number_of_bits if len(t.root_index_to_member) > 1 else 0
+        a, inner = src.fresh("a"), src.fresh("c")
+        src.emit(depth, f"if type({x}) is not tuple or len({x}) != 2 or type({x}[0]) is not str:")
+        src.emit(depth + 1, "raise Unsupported")
+        src.emit(depth, f"{a}, {inner} = {x}")
+        keyword = "if"
+        for index, member in t.root_index_to_member.items():
+            src.emit(depth, f"{keyword} {a} == {member.name!r}:")
+            _emit_bits(src, depth + 1, f"{index}", ext + index_bits)
+            _gen_encode(src, member, inner, depth + 1)
+            src.emit(depth + 1, "pass")
+            keyword = "elif"
+        src.emit(depth, "else:")
+        src.emit(depth + 1, "raise Unsupported")
+        return
+    if isinstance(t, per.Sequence):
+        additions = frozenset(_addition_names(t))
+        known = src.const(frozenset(m.name for m in t.root_members) | additions, "known")
+        check = f"type({x}) is not dict or not {known}.issuperset({x})"
+        if additions:
+            check += f" or not {src.const(additions, 'additions')}.isdisjoint({x})"
+        src.emit(depth, f"if {check}: raise Unsupported")
+        if t.additions is not None:
+            src.emit(depth, "v <<= 1; n += 1")
+        for m in t.optionals:
+            if not m.optional:  # DEFAULT: given is asn1tools' question, absent a 0
+                src.emit(depth, f"if {m.name!r} in {x}: raise Unsupported")
+                src.emit(depth, "v <<= 1; n += 1")
+            else:
+                src.emit(depth, f"v = (v << 1) | ({m.name!r} in {x}); n += 1")
+        for m in t.root_members:
+            y = src.fresh("m")
+            may_be_absent = m.optional or m.default is not None
+            src.emit(depth, f"{y} = {x}.get({m.name!r}, Unsupported)")
+            src.emit(depth, f"if {y} is not Unsupported:")
+            _gen_encode(src, m, y, depth + 1)
+            src.emit(depth + 1, "pass")
+            if not may_be_absent:
+                src.emit(depth, "else:")
+                src.emit(depth + 1, "raise Unsupported")
+        return
+    # BIT STRING, SEQUENCE OF, and what the closures leave to asn1tools: their closure
+    f = src.const(_build(t), "node")
+    bv, bn = src.fresh("bv"), src.fresh("bn")
+    src.emit(depth, f"{bv}, {bn} = {f}({x})")
+    src.emit(depth, f"v = (v << {bn}) | {bv}; n += {bn}")
+
+
+def _generated_encoder(t: Any) -> Callable[[Any], bytes]:
+    src = _Source()
+    src.emit(0, "def encode(x0):")
+    src.emit(1, "v = 0; n = 0")
+    _gen_encode(src, t, "x0", 1)
+    src.emit(1, "if n == 0: return b''")
+    src.emit(1, "pad = -n % 8")
+    src.emit(1, "return (v << pad).to_bytes((n + pad) // 8, 'big')")
+    encode: Callable[[Any], bytes] = src.compile("encode")
+    return encode
+
+
+def _gen_read(src: _Source, depth: int, target: str, nbits: int) -> None:
+    """target = the next nbits bits (an unsigned integer); out of data is Unsupported."""
+    src.emit(depth, f"q = p + {nbits}")
+    src.emit(depth, "if q > total: raise Unsupported")
+    src.emit(depth, f"{target} = (big >> (total - q)) & {(1 << nbits) - 1}; p = q")
+
+
+def _gen_decode(src: _Source, t: Any, target: str, depth: int) -> None:
+    """Code that reads one value into variable `target` (advancing p)."""
+    if isinstance(t, uper.Integer) and t.number_of_bits is not None:
+        lo, hi, nbits = t.minimum, t.maximum, t.number_of_bits
+        if t.has_extension_marker:
+            e = src.fresh("e")
+            _gen_read(src, depth, e, 1)
+            src.emit(depth, f"if {e}: raise Unsupported")
+        if nbits:
+            _gen_read(src, depth, target, nbits)
+            src.emit(depth, f"{target} += {lo}")
+        else:
+            src.emit(depth, f"{target} = {lo}")
+        src.emit(depth, f"if {target} > {hi}: raise Unsupported")
+        return
+    if isinstance(t, per.Boolean):
+        _gen_read(src, depth, target, 1)
+        src.emit(depth, f"{target} = bool({target})")
+        return
+    if isinstance(t, per.Enumerated):
+        data = src.const(dict(t.root_index_to_data), "data")
+        if t.additions_index_to_data is not None:
+            e = src.fresh("e")
+            _gen_read(src, depth, e, 1)
+            src.emit(depth, f"if {e}: raise Unsupported")
+        i = src.fresh("i")
+        if t.root_number_of_bits:
+            _gen_read(src, depth, i, t.root_number_of_bits)
+        else:
+            src.emit(depth, f"{i} = 0")
+        src.emit(depth, f"{target} = {data}.get({i}, Unsupported)")
+        src.emit(depth, f"if {target} is Unsupported: raise Unsupported")
+        return
+    if isinstance(t, per.Choice):
+        if t.additions_index_to_member is not None:
+            e = src.fresh("e")
+            _gen_read(src, depth, e, 1)
+            src.emit(depth, f"if {e}: raise Unsupported")
+        index_bits = t.root_number_of_bits if len(t.root_index_to_member) > 1 else 0
+        i, inner = src.fresh("i"), src.fresh("c")
+        if index_bits:
+            _gen_read(src, depth, i, index_bits)
+        else:
+            src.emit(depth, f"{i} = 0")
+        keyword = "if"
+        for index, member in t.root_index_to_member.items():
+            src.emit(depth, f"{keyword} {i} == {index}:")
+            _gen_decode(src, member, inner, depth + 1)
+            src.emit(depth + 1, f"{target} = ({member.name!r}, {inner})")
+            keyword = "elif"
+        src.emit(depth, "else:")
+        src.emit(depth + 1, "raise Unsupported")
+        return
+    if isinstance(t, per.Sequence):
+        if t.additions is not None:
+            e = src.fresh("e")
+            _gen_read(src, depth, e, 1)
+            src.emit(depth, f"if {e}: raise Unsupported")
+        n_optional = len(t.optionals)
+        presence = src.fresh("pr")
+        if n_optional:
+            _gen_read(src, depth, presence, n_optional)
+        optional_bit = {m.name: n_optional - 1 - k for k, m in enumerate(t.optionals)}
+        src.emit(depth, f"{target} = {{}}")
+        for m in t.root_members:
+            y = src.fresh("m")
+            bit = optional_bit.get(m.name)
+            if bit is None:
+                _gen_decode(src, m, y, depth)
+                src.emit(depth, f"{target}[{m.name!r}] = {y}")
+                continue
+            src.emit(depth, f"if {presence} >> {bit} & 1:")
+            _gen_decode(src, m, y, depth + 1)
+            src.emit(depth + 1, f"{target}[{m.name!r}] = {y}")
+            if m.has_default():
+                src.emit(depth, "else:")
+                src.emit(depth + 1, f"{target}[{m.name!r}] = {src.const(m.default, 'default')}")
+        return
+    f = src.const(_build_decoder(t), "node")
+    src.emit(depth, f"{target}, p = {f}(big, total, p)")
+
+
+def _generated_decoder(t: Any) -> Callable[[bytes], Any]:
+    src = _Source()
+    src.emit(0, "def decode(data):")
+    src.emit(1, "big = int.from_bytes(data, 'big'); total = 8 * len(data); p = 0")
+    _gen_decode(src, t, "x0", 1)
+    src.emit(1, "return x0")
+    decode: Callable[[bytes], Any] = src.compile("decode")
     return decode

@@ -289,3 +289,29 @@ def test_protocol_version_1_cams_decode_and_encode_as_asn1tools_does(
     altered = _flipped(sent, data.draw)
     if _decodes_alike(FAST_CAM_V1_DECODE, CAM_V1_SPEC, "CAM", altered):
         _agrees(FAST_CAM_V1, CAM_V1_SPEC, "CAM", CAM_V1_SPEC.decode("CAM", altered))
+
+
+CLOSURE_CAM = compile_encoder(CAM_SPEC.types["CAM"], generated=False)
+CLOSURE_CAM_DECODE = compile_decoder(CAM_SPEC.types["CAM"], generated=False)
+
+
+@given(st.data(), vehicle_states(), st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_the_generated_codec_equals_the_tree_of_closures(
+    data: st.DataObject, state: Any, low_frequency: bool
+) -> None:
+    """The two forms of one codec: the same bytes, values and refusals."""
+
+    def outcome(f: Any, arg: Any) -> Any:
+        try:
+            return repr(f(arg))
+        except Unsupported:
+            return Unsupported
+
+    value = _cam(state, low_frequency)
+    changed = _mutate(value, data.draw)
+    for v in (value, changed):
+        assert outcome(FAST_CAM, v) == outcome(CLOSURE_CAM, v)
+    sent = FAST_CAM(value)
+    for datagram in (sent, _flipped(sent, data.draw)):
+        assert outcome(FAST_CAM_DECODE, datagram) == outcome(CLOSURE_CAM_DECODE, datagram)
