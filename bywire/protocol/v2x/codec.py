@@ -283,17 +283,16 @@ def _fast_encoder(spec: Any, type_name: str) -> Callable[[Any], bytes]:
 def asn1_encode(spec: Any, type_name: str, value: dict[str, Any], what: str, fast: bool = False) -> bytes:
     """`spec.encode` with constraints checked; a value our builders let through is a V2xEncodeError.
     `fast`: first `fast_uper`'s encoder, which gives asn1tools' bytes or leaves the value to it."""
-    data: bytes | None = None
     if fast:
         try:
-            data = _fast_encoder(spec, type_name)(value)
+            # Not remembered: the canonical check re-encodes such a value faster than it compares.
+            return _fast_encoder(spec, type_name)(value)
         except Unsupported:
-            data = None
-    if data is None:
-        try:
-            data = bytes(spec.encode(type_name, value, check_constraints=True))
-        except (asn1tools.EncodeError, asn1tools.ConstraintsError) as e:
-            raise V2xEncodeError(what, str(e)) from None
+            pass
+    try:
+        data = bytes(spec.encode(type_name, value, check_constraints=True))
+    except (asn1tools.EncodeError, asn1tools.ConstraintsError) as e:
+        raise V2xEncodeError(what, str(e)) from None
     _ENCODED.remember(data, spec, type_name, value)
     return data
 
@@ -370,15 +369,16 @@ def check_canonical(
     bytes, non-zero padding and extension additions it does not know, so a datagram with bytes appended,
     flipped padding bits or unknown extensions is refused (NON_CANONICAL) rather than taken as another.
     `fast`: re-encode with `fast_uper` where it can (its bytes are asn1tools' with its constraints
-    checked, which asn1tools without the check gives too)."""
-    if _ENCODED.known(data, spec, type_name, value):
-        return
+    checked, which asn1tools without the check gives too), before asking the memory of our own
+    encodings: a CAM re-encodes in less time than its value takes to write out for the comparison."""
     again: bytes | None = None
     if fast:
         try:
             again = _fast_encoder(spec, type_name)(value)
         except Unsupported:
             again = None
+    if again is None and _ENCODED.known(data, spec, type_name, value):
+        return
     try:
         if again is None:
             again = bytes(spec.encode(type_name, value))

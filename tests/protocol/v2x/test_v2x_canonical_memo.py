@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from bywire.protocol.v2x import codec
 from bywire.protocol.v2x.codec import V2xDecodeError, _exact, _RecentEncodings
-from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState
+from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState, iclcm_value
 from bywire.protocol.v2x.schemas import SchemaSet, compiled
 from bywire.protocol.v2x.wire import decode, encode
 from tests.protocol.v2x.test_v2x_codec import T0_S, vehicle_states
@@ -82,8 +82,10 @@ def test_nothing_is_remembered_unless_the_process_asks() -> None:
 
 
 def test_our_own_datagram_is_known_only_with_its_spec_type_and_value() -> None:
+    """Remembered are asn1tools' encodings (the fast encoder's are checked by encoding them again)."""
     spec = compiled(SchemaSet.ICLCM)
-    data = encode(CooperativeState(9, T0_S, ControllerType.CACC, -2.34, lane=2))
+    msg = CooperativeState(9, T0_S, ControllerType.CACC, -2.34, lane=2)
+    data = codec.asn1_encode(spec, ICLCM, iclcm_value(msg), "iCLCM")
     value = spec.decode(ICLCM, data)
     assert codec._ENCODED.known(data, spec, ICLCM, value)
     assert not codec._ENCODED.known(data + b"\x00", spec, ICLCM, value)

@@ -315,3 +315,49 @@ def test_the_generated_codec_equals_the_tree_of_closures(
     sent = FAST_CAM(value)
     for datagram in (sent, _flipped(sent, data.draw)):
         assert outcome(FAST_CAM_DECODE, datagram) == outcome(CLOSURE_CAM_DECODE, datagram)
+
+
+def _asn1tools_only(spec: Any, type_name: str) -> Any:
+    def refuse(_: Any) -> Any:
+        raise Unsupported
+
+    return refuse
+
+
+def _verdict(datagram: bytes, reference_s: float) -> Any:
+    from bywire.protocol.v2x.codec import V2xDecodeError
+    from bywire.protocol.v2x.wire import decode
+
+    try:
+        return decode(datagram, reference_s)
+    except V2xDecodeError as e:
+        return (e.reason, str(e))
+
+
+@given(st.data(), st.one_of(vehicle_states(), cooperative_states), st.booleans())
+@settings(max_examples=300, deadline=None)
+def test_a_reception_gets_the_verdict_of_asn1tools_alone(
+    data: st.DataObject, msg: Any, remembered: bool
+) -> None:
+    """End to end (decode, the canonical check, the conversion to SI), with our own encodings remembered
+    (SIL) or not: the message or the refusal, word for word, that asn1tools alone gives."""
+    from bywire.protocol.v2x import codec
+    from bywire.protocol.v2x.wire import encode
+
+    codec.remember_own_encodings(remembered)
+    try:
+        try:
+            sent = encode(msg)
+        except V2xEncodeError:
+            assume(False)
+            raise
+        received = sent if data.draw(st.booleans()) else _flipped(sent, data.draw)
+        reference_s = msg.generation_time_s + 0.1
+        fast = _verdict(received, reference_s)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(codec, "_fast_encoder", _asn1tools_only)
+            patch.setattr(codec, "_fast_decoder", _asn1tools_only)
+            codec._ENCODED.clear()
+            assert _verdict(received, reference_s) == fast
+    finally:
+        codec.remember_own_encodings(False)
