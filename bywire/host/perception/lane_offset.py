@@ -256,14 +256,14 @@ class OffsetFilter:
                 self._rejected.clear()
                 accepted = True
             else:
-                self._rejected.append(measurement)
+                # the last `reset_after` only: an older one (that did not agree) must not shift the mean
+                self._rejected = [*self._rejected, measurement][-prm.reset_after :]
                 if len(self._rejected) >= prm.reset_after and self._consistent(self._rejected):
                     # the map's error changed: start again from what the last frames agree on
                     self._x = float(np.mean([m.offset_m for m in self._rejected]))
                     self._p = float(np.max([m.variance_m2 for m in self._rejected]))
                     self._rejected.clear()
                     accepted = True
-                self._rejected = self._rejected[-prm.reset_after :]
             if accepted:
                 self._accepted_s = stamp_s
         valid = (
@@ -279,7 +279,7 @@ class OffsetFilter:
         self._p *= 1.0 - gain
 
     def _consistent(self, ms: list[OffsetMeasurement]) -> bool:
-        values = np.array([m.offset_m for m in ms[-self.params.reset_after :]])
+        values = np.array([m.offset_m for m in ms])
         return float(values.max() - values.min()) <= 2.0 * self.params.inlier_m
 
 

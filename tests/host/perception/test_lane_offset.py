@@ -105,6 +105,20 @@ def test_a_lasting_change_of_the_maps_error_restarts_the_filter() -> None:
     assert out.offset_m == pytest.approx(1.5, abs=0.01)
 
 
+def test_a_restart_takes_only_the_refusals_that_agree() -> None:
+    """A refusal older than the last `reset_after` (one that did not agree with them) does not shift the
+    value the filter restarts on."""
+    f = OffsetFilter(OffsetParams(reset_after=3))
+    for k in range(10):
+        f.update(OffsetMeasurement(0.0, 0.01, (), 2, 0.0), 0.1 * k)
+    outs = [
+        f.update(OffsetMeasurement(z, 0.01, (), 2, 0.0), 1.0 + 0.1 * k)
+        for k, z in enumerate((2.0, 1.0, 1.0, 1.0))
+    ]
+    assert [o.accepted for o in outs] == [False, False, False, True]
+    assert outs[-1].offset_m == pytest.approx(1.0)  # not (2 + 1 + 1 + 1) / 4
+
+
 def test_the_offset_goes_invalid_without_markings() -> None:
     f = OffsetFilter(OffsetParams(timeout_s=2.0))
     assert not f.update(None, 0.0).valid  # nothing seen yet: the prior is a metre wide
