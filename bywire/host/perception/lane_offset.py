@@ -30,8 +30,12 @@ Filtering (`OffsetFilter`): a scalar Kalman filter, random walk with `process_si
 measurement whose innovation exceeds `gate_sigmas` standard deviations is rejected (a wrong match is a
 whole lane width, metres, against a spread of centimetres). `reset_after` consecutive rejected but
 mutually consistent measurements restart the filter on them: the map's error really did change (a new
-road, a new survey). The offset is valid while its standard deviation is below `valid_sigma_m` and a
-measurement was accepted within `timeout_s`.
+road, a new survey). Within one road (the map lane the caller names with each measurement) a restart
+moves the estimate by `max_restart_m` at most: an RNDF's error changes slowly along a road (the random
+walk follows that through the gate) and does not exceed a lane width, and every larger restart within a
+lane on the DARPA sample was a misreading (another lane's lines matched as ours for 0.5-6 s, restarted on
+0.7-1.5 m). The offset is valid while its standard deviation is below `valid_sigma_m` and a measurement
+was accepted within `timeout_s`.
 
 Convention: offset > 0 means the real lane lies to the LEFT of the map's lane, left taken along the
 centreline in the order of its points (its driving direction). `apply_offset` moves a route that way.
@@ -43,6 +47,7 @@ paper's "vertical distance", and add the robust mean and the filter, which it do
 from __future__ import annotations
 
 import math
+from collections.abc import Hashable
 from dataclasses import dataclass, replace
 from typing import overload
 
@@ -102,6 +107,12 @@ class OffsetParams:
     # Half a second of agreeing refusals at 10 Hz: longer than a wrong match lasts (a frame or two
     # while a line enters the image), short against a road's length.
     reset_after: int = 5
+    # Within one road (`OffsetFilter.update`'s `road`) a restart moves the estimate by at most this
+    # much: an RNDF's error changes slowly along a road, which the random walk follows through the
+    # gate, and "does not exceed one lane width"; a restart of 0.7-1.5 m within a lane was a
+    # misreading every time on the DARPA sample (a neighbour's line taken for ours for 0.5-6 s). On
+    # another road the error may be another one: any restart.
+    max_restart_m: float = 0.5
     # Valid for the route when 1 sigma is under 0.3 m (a tenth of a lane) and fresh within 2 s (20 m at
     # 10 m/s; beyond, the map's error may be another one).
     valid_sigma_m: float = 0.3
@@ -112,7 +123,14 @@ class OffsetParams:
             raise ValueError("markings_lane_widths: at least one expected marking")
         if not 0.0 < self.max_offset_lane_widths <= 0.5:
             raise ValueError(f"max_offset_lane_widths = {self.max_offset_lane_widths}: must be in (0, 0.5]")
-        for name in ("inlier_m", "measurement_sigma_m", "prior_sigma_m", "gate_sigmas", "valid_sigma_m"):
+        for name in (
+            "inlier_m",
+            "measurement_sigma_m",
+            "prior_sigma_m",
+            "gate_sigmas",
+            "max_restart_m",
+            "valid_sigma_m",
+        ):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"OffsetParams.{name} = {getattr(self, name)}: must be > 0")
         if self.reset_after < 1 or self.min_lines < 1:
@@ -238,9 +256,14 @@ class OffsetFilter:
         self._p = self.params.prior_sigma_m**2
         self._stamp_s: float | None = None
         self._accepted_s: float | None = None
+        self._accepted_road: Hashable | None = None
         self._rejected: list[OffsetMeasurement] = []
 
-    def update(self, measurement: OffsetMeasurement | None, stamp_s: float) -> LaneOffset:
+    def update(
+        self, measurement: OffsetMeasurement | None, stamp_s: float, road: Hashable | None = None
+    ) -> LaneOffset:
+        """One frame: `measurement` (None: nothing measured) taken on `road` (the map lane it was
+        measured against; None: unknown, every restart allowed), see the module docstring."""
         prm = self.params
         if self._stamp_s is not None:
             dt = max(stamp_s - self._stamp_s, 0.0)
@@ -259,13 +282,17 @@ class OffsetFilter:
                 # the last `reset_after` only: an older one (that did not agree) must not shift the mean
                 self._rejected = [*self._rejected, measurement][-prm.reset_after :]
                 if len(self._rejected) >= prm.reset_after and self._consistent(self._rejected):
-                    # the map's error changed: start again from what the last frames agree on
-                    self._x = float(np.mean([m.offset_m for m in self._rejected]))
-                    self._p = float(np.max([m.variance_m2 for m in self._rejected]))
-                    self._rejected.clear()
-                    accepted = True
+                    restart = float(np.mean([m.offset_m for m in self._rejected]))
+                    same_road = road is not None and road == self._accepted_road
+                    if not same_road or abs(restart - self._x) <= prm.max_restart_m:
+                        # the map's error changed: start again from what the last frames agree on
+                        self._x = restart
+                        self._p = float(np.max([m.variance_m2 for m in self._rejected]))
+                        self._rejected.clear()
+                        accepted = True
             if accepted:
                 self._accepted_s = stamp_s
+                self._accepted_road = road
         valid = (
             self._accepted_s is not None
             and stamp_s - self._accepted_s <= prm.timeout_s
@@ -287,7 +314,8 @@ class LaneOffsetEstimator:
     """Scan in, filtered offset out: `LaneMarkerMap` + `measure_offset` + `OffsetFilter`.
 
     `update(scan, pose, centreline, lane_width_m)` once per revolution, with the car's pose when the scan
-    was taken and the map lane it drives in (its centreline as world points in driving order).
+    was taken and the map lane it drives in (its centreline as world points in driving order; `road`
+    names it for the filter's restart rule).
     """
 
     def __init__(
@@ -312,12 +340,13 @@ class LaneOffsetEstimator:
         lane_width_m: float,
         ground_mask: BoolArray | None = None,
         markings_m: npt.ArrayLike | None = None,
+        road: Hashable | None = None,
     ) -> LaneOffset:
         self.markers.update(scan, pose, ground_mask)
         m = measure_offset(
             self.markers.grid, centreline_xy_m, lane_width_m, self.params, markings_m=markings_m
         )
-        self.last = self.filter.update(m, scan.stamp_s)
+        self.last = self.filter.update(m, scan.stamp_s, road)
         return self.last
 
 
