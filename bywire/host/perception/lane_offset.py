@@ -14,7 +14,11 @@ One measurement (`measure_offset`), on the marker image of `lane_markers.MarkerG
    psi of the centreline from `centreline_window_m` behind F to as far ahead (a lane is smooth over a
    few tens of metres; the chord averages the RNDF's waypoint kinks).
 2. The Radon plane at normals psi + 90 deg +- `max_angle_error_rad` (the lines are "close to parallel"):
-   the angle of most high-passed energy, then the peaks of its projection (`radon.lines_at`).
+   the angle of most high-passed energy, then the peaks of its projection (`radon.lines_at`). No
+   measurement where that angle is the window's edge: the energy still grows there, the lines run
+   farther off the map's direction than "close to parallel" (the chord across a curve's start or end,
+   another road's paint), and the peaks at the edge's angle are not where the lines cross the car's
+   normal (0.3-0.5 m off in a synthetic 25-30 m curve, 0.1-0.17 m once such frames are left out).
 3. Each observed line's signed lateral distance from the centreline, d = p - n . (F - C) (left > 0,
    n the left normal, C the image centre), is matched to the nearest expected marking e_j: where the
    map puts them (`markings_m`, the urban host's lane_offset module reads them off the road network:
@@ -214,6 +218,12 @@ def measure_offset(
     spec = spectrum if spectrum is not None else RadonSpectrum(grid.image, grid.cell_m, disc=True)
     normal_map = psi + math.pi / 2.0
     normal = dominant_normal(spec, normal_map, params.max_angle_error_rad, highpass_m=params.highpass_m)
+    angle_error = math.remainder(normal - normal_map, 2.0 * math.pi)
+    if abs(angle_error) >= params.max_angle_error_rad - 1e-9:
+        # the energy still grows at the window's edge: the lines run farther off the map's direction
+        # than "close to parallel" (a curve's ends, another road's paint), and the peaks at this angle
+        # are not where the lines cross the car's normal (0.3-0.5 m off in a synthetic 25-30 m curve)
+        return None
     found: LineSet = lines_at(spec, normal, highpass_m=params.highpass_m)
     if len(found.lines) < params.min_lines:
         return None
@@ -240,7 +250,6 @@ def measure_offset(
     spread = float(np.average((votes[inl] - mean) ** 2, weights=w))
     k = int(np.count_nonzero(inl))
     variance = params.measurement_sigma_m**2 + spread / k
-    angle_error = math.remainder(normal - normal_map, 2.0 * math.pi)
     return OffsetMeasurement(mean, variance, tuple(float(v) for v in lateral), k, angle_error)
 
 

@@ -148,6 +148,49 @@ def test_a_road_that_is_not_named_restarts_as_before() -> None:
     assert outs[-1].accepted and outs[-1].offset_m == pytest.approx(1.4)
 
 
+def painted_grid(angle_deg: float, lateral_m: tuple[float, ...] = (-1.75, 1.75, 5.25)) -> MarkerGrid:
+    """A marker image of straight lines through the image at `angle_deg` (world), `lateral_m` left of
+    the line through the image centre, every cell they cross marked once."""
+    grid = MarkerGrid(GridParams())
+    grid.recentre(0.0, 0.0)
+    a = math.radians(angle_deg)
+    d, n = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
+    cx, cy = grid.centre_xy_m
+    ox, oy = grid.origin_xy_m
+    t = np.arange(-30.0, 30.0, 0.02)
+    for lat in lateral_m:
+        x = cx + t * d[0] + lat * n[0]
+        y = cy + t * d[1] + lat * n[1]
+        col = np.floor((x - ox) / grid.cell_m).astype(int)
+        row = np.floor((y - oy) / grid.cell_m).astype(int)
+        ok = (col >= 0) & (col < grid.image.shape[1]) & (row >= 0) & (row < grid.image.shape[0])
+        grid.image[row[ok], col[ok]] = 1.0
+    return grid
+
+
+@pytest.mark.parametrize("angle_deg", [-2.5, 0.0, 3.0])
+def test_lines_close_to_parallel_are_measured(angle_deg: float) -> None:
+    m = measure_offset(painted_grid(angle_deg), [[-50.0, 0.0], [50.0, 0.0]], LANE_W_M)
+    assert m is not None and abs(m.offset_m) <= 0.1
+    assert m.angle_error_rad == pytest.approx(math.radians(angle_deg), abs=math.radians(0.2))
+
+
+@pytest.mark.parametrize("angle_deg", [-6.0, 5.0, 8.0])
+def test_lines_beyond_the_angle_window_are_not_measured(angle_deg: float) -> None:
+    """The paper's "predicted and estimated lane boundaries are close to parallel": the Radon plane is
+    searched within 4 deg of the map's lane. Where its energy still grows at the window's edge, the
+    lines run farther off (a curve's chord, another road's paint) and the peaks at the edge's angle are
+    not where the lines cross the car's normal: no measurement, rather than one of up to 0.5 m."""
+    grid = painted_grid(angle_deg)
+    assert measure_offset(grid, [[-50.0, 0.0], [50.0, 0.0]], LANE_W_M) is None
+    # the same lines against a map lane that runs with them are measured
+    a = math.radians(angle_deg)
+    m = measure_offset(
+        grid, [[-50.0 * math.cos(a), -50.0 * math.sin(a)], [50.0 * math.cos(a), 50.0 * math.sin(a)]], LANE_W_M
+    )
+    assert m is not None and abs(m.offset_m) <= 0.1
+
+
 def test_the_offset_goes_invalid_without_markings() -> None:
     f = OffsetFilter(OffsetParams(timeout_s=2.0))
     assert not f.update(None, 0.0).valid  # nothing seen yet: the prior is a metre wide
