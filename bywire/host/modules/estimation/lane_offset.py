@@ -17,8 +17,11 @@ in places (the DARPA sample's first segment: up to 4.8 m for 12 ft lanes), and a
 width put the shared line 0.6 m off where it is: the car drove its first 90 s 0.5 m beside its lane.
 
 Where it measures: on a lane (not an exit or a zone), the car moving (`MIN_SPEED_MPS`) along it
-(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another. It reads the
-road network from the host's resources: it runs in the host process.
+(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another. The map lane
+handed to the estimator is the lane's whole curve around the car, not the edge to the next waypoint:
+near a waypoint in a curve that edge's chord came from the 15 m behind the car alone (13.1's 25 m curve
+on the DARPA sample: read 0.7-1.0 m on every lap). It reads the road network from the host's resources:
+it runs in the host process.
 """
 
 from __future__ import annotations
@@ -62,7 +65,9 @@ MAX_HEADING_ERROR_RAD = math.radians(10.0)
 # 1.2.6 -> 4.1.1, five such frames restarted the filter on a 1.4 m offset. Measured again once the car has
 # driven this far along the new lane.
 SETTLE_M = 20.0
-BEHIND_M, AHEAD_M = 20.0, 40.0  # the map lane handed to the estimator, around the car's foot point
+# The map lane handed to the estimator, around the car's foot point, from the lane's whole curve (an
+# edge ends at the next waypoint, and its chord then missed the curve ahead: 13.1 on the DARPA sample).
+BEHIND_M, AHEAD_M = 20.0, 40.0
 
 
 class LaneOffsetModule(Module):
@@ -95,8 +100,10 @@ class LaneOffsetModule(Module):
             self._lane, self._lane_since = match.edge.lane, since
         if math.hypot(x - self._lane_since[0], y - self._lane_since[1]) < SETTLE_M:
             return None
-        path = match.edge.path
-        s = np.unique(np.clip(np.arange(match.s_m - BEHIND_M, match.s_m + AHEAD_M, 1.0), 0.0, path.length_m))
+        graph = self.lane_index.graph
+        path = graph.lane_path(match.edge.lane)
+        s_lane = graph.lane_s(match.edge.start) + match.s_m
+        s = np.unique(np.clip(np.arange(s_lane - BEHIND_M, s_lane + AHEAD_M, 1.0), 0.0, path.length_m))
         if len(s) < 2:
             return None
         px, py, _, _ = path.sample(s)
