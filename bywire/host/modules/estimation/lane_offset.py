@@ -17,17 +17,35 @@ in places (the DARPA sample's first segment: up to 4.8 m for 12 ft lanes), and a
 width put the shared line 0.6 m off where it is: the car drove its first 90 s 0.5 m beside its lane.
 
 Where it measures: on a lane (not an exit or a zone), the car moving (`MIN_SPEED_MPS`) along it
-(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another. The map lane
-handed to the estimator is the lane's whole curve around the car, not the edge to the next waypoint:
-near a waypoint in a curve that edge's chord came from the 15 m behind the car alone (13.1's 25 m curve
-on the DARPA sample: read 0.7-1.0 m on every lap). It reads the road network from the host's resources:
-it runs in the host process.
+(`MAX_HEADING_ERROR_RAD`), `SETTLE_M` or more after it came onto that lane from another, and only where
+the map's lines run parallel to the lane over the +-15 m the measurement's chord spans
+(`parallel_markings`, looked at every `STATION_M`):
+
+- no other lane lies within half a width of it: there the map draws two lanes on one, and the simulated
+  road paints both lanes' lines (the DARPA sample's 3.1 and 3.2 lie 0.6-1.6 m apart over 60 m: their
+  lines were read as a 1.0-1.5 m offset for 6 s, and the car drove 1.47 m beside its lane);
+- as many markings are expected all along: a lane beside begins or ends, or its centre crosses
+  1.5 widths, where the paint changes from a line midway to the lane's own edges (10.1 beside 10.2 lies
+  5.48-5.52 m across);
+- every lane within `REACH_LANE_WIDTHS` keeps its distance across within `PARALLEL_TOL_M`: a diverging
+  lane's lines smear beside the expected ones or pull the Radon direction off ours (3.1 leaving 3.2 at
+  3.7 deg: read 0.7 m).
+
+Elsewhere nothing is measured, and the filter holds what it had (a real RNDF error changes slowly along
+a road). The map lane handed to the estimator is the lane's whole curve around the car, not the edge to
+the next waypoint: near a waypoint in a curve that edge's chord came from the 15 m behind the car alone
+(13.1's 25 m curve: read 0.7-1.0 m on every lap). On the DARPA sample mission's recorded marker images
+(the map right: every offset a misreading), 361 of 13 256 frames read more than 0.3 m (86 more than
+1 m); with the whole curve, these rules and the estimator's own (no measurement at the angle window's
+edge, no restart onto a jump within a lane) 2 do (0.33 m at most), and 28 % of the frames are not
+measured. It reads the road network from the host's resources: it runs in the host process.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -68,6 +86,20 @@ SETTLE_M = 20.0
 # The map lane handed to the estimator, around the car's foot point, from the lane's whole curve (an
 # edge ends at the next waypoint, and its chord then missed the curve ahead: 13.1 on the DARPA sample).
 BEHIND_M, AHEAD_M = 20.0, 40.0
+# The map is compared with the paint only where its lines run parallel to the lane over the measurement's
+# chord (`OffsetParams.centreline_window_m`, +-15 m), looked at every `STATION_M`: there the Radon plane
+# has one direction and the lines lie where the map says at the car as well.
+PARALLEL_WINDOW_M = 15.0
+STATION_M = 2.5
+# A lane within this many of our widths (centre to centre) paints lines that can vote: its near edge
+# within 2.5 widths, where a vote is still matched beyond the farthest expected marking (2 widths).
+REACH_LANE_WIDTHS = 3.0
+# A lane is abreast of a point where its nearest point lies square to it within this (its samples' chords);
+# farther along, that nearest point is the lane's end.
+ABREAST_M = 0.5
+# A lane that moves across by more than this over the window is not parallel (1 deg over 30 m): its line
+# projects to a smear that moves the peak, or pulls the Radon direction off ours.
+PARALLEL_TOL_M = 0.5
 
 
 class LaneOffsetModule(Module):
@@ -85,12 +117,13 @@ class LaneOffsetModule(Module):
         self._normal = (0.0, 0.0)
         self._lane: Any = None  # the map lane measured against, and where the car came onto it
         self._lane_since = (math.inf, math.inf)
+        self._stations: dict[tuple[Any, int], _Station] = {}  # parallel_markings' cache
         self._last = LaneOffsetEstimate(0.0, False, math.nan, 0.0, math.inf, False, 0.0, 0.0, 0.0)
 
     def _map_lane(self, x: float, y: float, h: float) -> tuple[np.ndarray, float, tuple[float, ...]] | None:
-        """The centreline (driving order), width and expected markings (`expected_markings`) of the map
-        lane the car is on, or None (also while the car has driven less than `SETTLE_M` along it since it
-        came onto it)."""
+        """The centreline (driving order), width and expected markings (`parallel_markings`) of the map
+        lane the car is on, or None: off a lane, where the map's lines are not parallel to it, and while
+        the car has driven less than `SETTLE_M` along it since it came onto it."""
         match = self.lane_index.match(x, y, h, max_heading_error_rad=MAX_HEADING_ERROR_RAD)
         if match is None or match.edge.kind != EdgeKind.LANE:
             return None
@@ -100,6 +133,10 @@ class LaneOffsetModule(Module):
             self._lane, self._lane_since = match.edge.lane, since
         if math.hypot(x - self._lane_since[0], y - self._lane_since[1]) < SETTLE_M:
             return None
+        width = float(match.edge.lane_width_m or DEFAULT_LANE_WIDTH_M)
+        markings = parallel_markings(self.lane_index, match.edge, match.s_m, width, self._stations)
+        if markings is None:
+            return None
         graph = self.lane_index.graph
         path = graph.lane_path(match.edge.lane)
         s_lane = graph.lane_s(match.edge.start) + match.s_m
@@ -107,12 +144,7 @@ class LaneOffsetModule(Module):
         if len(s) < 2:
             return None
         px, py, _, _ = path.sample(s)
-        width = float(match.edge.lane_width_m or DEFAULT_LANE_WIDTH_M)
-        return (
-            np.column_stack((px, py)),
-            width,
-            expected_markings(self.lane_index, match.edge, match.s_m, width),
-        )
+        return np.column_stack((px, py)), width, markings
 
     def start(self, ctx: ModuleContext) -> None:
         warm_up()  # the marker features' compiled kernels, before the first release
@@ -151,7 +183,9 @@ class LaneOffsetModule(Module):
             est = self.estimator.filter.update(None, scan.stamp_s)
         else:
             centreline, width, markings = lane
-            est = self.estimator.update(s, VehiclePose(x, y, h), centreline, width, markings_m=markings)
+            est = self.estimator.update(
+                s, VehiclePose(x, y, h), centreline, width, markings_m=markings, road=self._lane
+            )
             d = centreline[-1] - centreline[0]
             norm = float(np.hypot(d[0], d[1]))
             if est.accepted and norm > 0.0:
@@ -162,24 +196,41 @@ class LaneOffsetModule(Module):
                                         applied * nx, applied * ny, est.offset_m)  # fmt: skip
 
 
-def expected_markings(lane_index: Any, edge: Any, s_m: float, width_m: float) -> tuple[float, ...]:
-    """Where the map puts the markings at arc length `s_m` of lane `edge`, in metres left of its centre
-    (see the module docstring), sorted."""
-    foot = edge.path.point_at(s_m)
-    nx, ny = -math.sin(foot.heading_rad), math.cos(foot.heading_rad)
+def lanes_beside(
+    lane_index: Any, lane: Any, x_m: float, y_m: float, heading_rad: float, reach_m: float
+) -> dict[Any, tuple[float, float]]:
+    """The other lanes beside the point (x, y) of lane `lane` heading `heading_rad`: lane id -> (its
+    centre's distance across, left > 0; its width), for each lane that runs within
+    `BESIDE_MAX_ANGLE_RAD` of it either way, whose centre lies within `reach_m`, abreast of the point
+    (its nearest point is square to it, not an end of it that lies ahead or behind)."""
+    nx, ny = -math.sin(heading_rad), math.cos(heading_rad)
+    nearest: dict[Any, Any] = {}  # lane -> its nearest candidate edge
+    for cand in lane_index.candidates(x_m, y_m, None, max_distance_m=reach_m):
+        other = cand.edge
+        if other.kind != EdgeKind.LANE or other.lane == lane:
+            continue
+        if other.lane not in nearest or cand.distance_m < nearest[other.lane].distance_m:
+            nearest[other.lane] = cand
+    out: dict[Any, tuple[float, float]] = {}
+    for other_lane, cand in nearest.items():
+        p = cand.edge.path.point_at(cand.s_m)
+        if abs(math.cos(p.heading_rad - heading_rad)) < math.cos(BESIDE_MAX_ANGLE_RAD):
+            continue
+        dx, dy = p.x_m - x_m, p.y_m - y_m
+        if abs(dx * math.cos(p.heading_rad) + dy * math.sin(p.heading_rad)) > ABREAST_M:
+            continue  # the lane ends before it comes abreast
+        out[other_lane] = (nx * dx + ny * dy, float(cand.edge.lane_width_m or DEFAULT_LANE_WIDTH_M))
+    return out
+
+
+def _markings(beside: Mapping[Any, tuple[float, float]], width_m: float) -> tuple[float, ...]:
+    """The expected markings (see `expected_markings`) from the lanes beside (`lanes_beside`)."""
     lo, hi = BESIDE_LANE_WIDTHS[0] * width_m, BESIDE_LANE_WIDTHS[1] * width_m
     nearest: dict[float, tuple[float, float]] = {}  # side -> (centre across, that lane's width)
-    for cand in lane_index.candidates(foot.x_m, foot.y_m, None, max_distance_m=hi):
-        other = cand.edge
-        if other.kind != EdgeKind.LANE or other.lane == edge.lane:
-            continue
-        p = other.path.point_at(cand.s_m)
-        if abs(math.cos(p.heading_rad - foot.heading_rad)) < math.cos(BESIDE_MAX_ANGLE_RAD):
-            continue
-        across = nx * (p.x_m - foot.x_m) + ny * (p.y_m - foot.y_m)
+    for across, other_width in beside.values():
         side = math.copysign(1.0, across)
         if lo <= abs(across) <= hi and (side not in nearest or abs(across) < abs(nearest[side][0])):
-            nearest[side] = (across, float(other.lane_width_m or DEFAULT_LANE_WIDTH_M))
+            nearest[side] = (across, other_width)
     out: list[float] = []
     for side in (1.0, -1.0):
         if side in nearest:
@@ -190,4 +241,70 @@ def expected_markings(lane_index: Any, edge: Any, s_m: float, width_m: float) ->
     return tuple(sorted(out))
 
 
-__all__ = ["LaneOffsetModule", "expected_markings"]
+def expected_markings(lane_index: Any, edge: Any, s_m: float, width_m: float) -> tuple[float, ...]:
+    """Where the map puts the markings at arc length `s_m` of lane `edge`, in metres left of its centre
+    (see the module docstring), sorted."""
+    foot = edge.path.point_at(s_m)
+    beside = lanes_beside(
+        lane_index, edge.lane, foot.x_m, foot.y_m, foot.heading_rad, BESIDE_LANE_WIDTHS[1] * width_m
+    )
+    return _markings(beside, width_m)
+
+
+@dataclass(frozen=True)
+class _Station:
+    """What the map has beside a station of a lane (`parallel_markings`)."""
+
+    overlapped: bool  # another lane's centre within half a width of it
+    markings: int  # how many markings are expected there
+    across_m: Mapping[Any, float]  # the lanes within reach: their centres' distance across
+
+
+def _station(lane_index: Any, lane: Any, s_m: float, width_m: float) -> _Station:
+    p = lane_index.graph.lane_path(lane).point_at(s_m)
+    beside = lanes_beside(lane_index, lane, p.x_m, p.y_m, p.heading_rad, REACH_LANE_WIDTHS * width_m)
+    return _Station(
+        any(abs(a) < BESIDE_LANE_WIDTHS[0] * width_m for a, _ in beside.values()),
+        len(_markings(beside, width_m)),
+        {other: a for other, (a, _) in beside.items()},
+    )
+
+
+def parallel_markings(
+    lane_index: Any,
+    edge: Any,
+    s_m: float,
+    width_m: float,
+    cache: dict[tuple[Any, int], _Station] | None = None,
+) -> tuple[float, ...] | None:
+    """`expected_markings` at arc length `s_m` of lane `edge`, or None where the map's lines do not run
+    parallel to the lane over +-`PARALLEL_WINDOW_M` along it (see the module docstring): another lane
+    within half a width of it (the map draws two lanes on one), expected markings that come or go (a
+    lane beside begins, ends, or crosses the band of `BESIDE_LANE_WIDTHS`), or a lane within
+    `REACH_LANE_WIDTHS` that moves across by more than `PARALLEL_TOL_M` (it diverges). The stations
+    lie every `STATION_M` along the lane from its start; `cache` keeps them (the map does not move)."""
+    graph = lane_index.graph
+    lane = edge.lane
+    length = graph.lane_path(lane).length_m
+    s_lane = graph.lane_s(edge.start) + s_m
+    first = max(math.ceil((s_lane - PARALLEL_WINDOW_M) / STATION_M), 0)
+    last = min(math.floor((s_lane + PARALLEL_WINDOW_M) / STATION_M), math.floor(length / STATION_M))
+    counts: set[int] = set()
+    across: dict[Any, list[float]] = {}
+    for k in range(first, last + 1):
+        station = cache.get((lane, k)) if cache is not None else None
+        if station is None:
+            station = _station(lane_index, lane, k * STATION_M, width_m)
+            if cache is not None:
+                cache[(lane, k)] = station
+        if station.overlapped:
+            return None
+        counts.add(station.markings)
+        for other, a in station.across_m.items():
+            across.setdefault(other, []).append(a)
+    if len(counts) > 1 or any(max(a) - min(a) > PARALLEL_TOL_M for a in across.values()):
+        return None
+    return expected_markings(lane_index, edge, s_m, width_m)
+
+
+__all__ = ["LaneOffsetModule", "expected_markings", "lanes_beside", "parallel_markings"]
