@@ -18,7 +18,7 @@ One measurement (`measure_offset`), on the marker image of `lane_markers.MarkerG
    measurement where that angle is the window's edge: the energy still grows there, the lines run
    farther off the map's direction than "close to parallel" (the chord across a curve's start or end,
    another road's paint), and the peaks at the edge's angle are not where the lines cross the car's
-   normal (0.3-0.5 m off in a synthetic 25-30 m curve, 0.1-0.17 m once such frames are left out).
+   normal (up to 0.5 m off in synthetic 25-30 m curves, 0.10-0.17 m once such frames are left out).
 3. Each observed line's signed lateral distance from the centreline, d = p - n . (F - C) (left > 0,
    n the left normal, C the image centre), is matched to the nearest expected marking e_j: where the
    map puts them (`markings_m`, the urban host's lane_offset module reads them off the road network:
@@ -222,7 +222,7 @@ def measure_offset(
     if abs(angle_error) >= params.max_angle_error_rad - 1e-9:
         # the energy still grows at the window's edge: the lines run farther off the map's direction
         # than "close to parallel" (a curve's ends, another road's paint), and the peaks at this angle
-        # are not where the lines cross the car's normal (0.3-0.5 m off in a synthetic 25-30 m curve)
+        # are not where the lines cross the car's normal (up to 0.5 m off in a synthetic 25-30 m curve)
         return None
     found: LineSet = lines_at(spec, normal, highpass_m=params.highpass_m)
     if len(found.lines) < params.min_lines:
