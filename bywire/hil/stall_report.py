@@ -5,7 +5,8 @@ went silent, not which or why. The host and the plant record their stalls (`bywi
 the silent channel, the threads' states, CPU and stacks); this joins them: for each watchdog fault the
 ECU raised when it stopped an engaged car, as the host saw its status (the host trace's `ecu_state` and
 `ecu_faults`), the stalls of either process that were open in the `LOOKBACK_S` before it, and the
-stalls of the machine itself in that time (`machine_probe`: when no process could run at all).
+stalls of the machine's CPUs in that time (`machine_probe`: a CPU withheld from even the highest
+real-time priority, by the kernel or the hypervisor).
 """
 
 from __future__ import annotations
@@ -59,8 +60,8 @@ def brief(record: dict[str, Any], t0: float) -> dict[str, Any]:
 
 
 def machine_stall_ms(machine: dict[str, Any], t_fault: float) -> float:
-    """The longest stall of the machine itself (`machine_probe`, stalls in run time) open in the lookback
-    before `t_fault`: for that long not even the highest real-time priority could run; 0.0 if none."""
+    """The longest stall of any CPU (`machine_probe`, stalls in run time) open in the lookback before
+    `t_fault`: for that long not even the highest real-time priority could run there; 0.0 if none."""
     worst = 0.0
     for stall in machine.get("stalls", []):
         start = stall["from_s"]
@@ -78,7 +79,7 @@ def culprits(
 ) -> list[dict[str, Any]]:
     """For each watchdog stop before `until_s` (the scenario's end, when the plant stops sending): when,
     the stalls of each process open in the lookback before it, and (given the machine probe's summary)
-    `machine_stall_ms`, how long the machine itself stalled in that lookback."""
+    `machine_stall_ms`, how long a CPU of the machine stalled in that lookback."""
     if host_trace is None:
         return []
     out = []
