@@ -113,6 +113,15 @@ class CyraPrediction:
     accel_mps2: FloatArray
 
 
+def _speed_limit(v0_mps: float, accel_mps2: float, speed_max_mps: float) -> tuple[float, float]:
+    """When (s from now) and at what speed a constant acceleration from v0 meets [0, v_max]: inf if never."""
+    if accel_mps2 > 0.0:
+        return (speed_max_mps - v0_mps) / accel_mps2, speed_max_mps
+    if accel_mps2 < 0.0:
+        return -v0_mps / accel_mps2, 0.0
+    return math.inf, v0_mps
+
+
 def cyra_predict(
     x_m: float,
     y_m: float,
@@ -127,12 +136,7 @@ def cyra_predict(
     t = np.maximum(np.asarray(dt_s, dtype=np.float64), 0.0)
     v0 = min(max(speed_mps, 0.0), speed_max_mps)
     a, w = accel_mps2, yaw_rate_radps
-    if a > 0.0:
-        t_lim, v_lim = (speed_max_mps - v0) / a, speed_max_mps
-    elif a < 0.0:
-        t_lim, v_lim = -v0 / a, 0.0
-    else:
-        t_lim, v_lim = math.inf, v0
+    t_lim, v_lim = _speed_limit(v0, a, speed_max_mps)
     T1 = np.minimum(t, t_lim)
     ic1, is1 = _arc_integrals(v0, a, heading_rad, w, T1)
     T2 = t - T1
@@ -206,12 +210,7 @@ def cyra_predict_scalar(
     t = dt_s if dt_s > 0.0 else 0.0  # np.maximum(dt, 0.0); dt is never -0.0 (a difference of times)
     v0 = min(max(speed_mps, 0.0), speed_max_mps)
     a, w = accel_mps2, yaw_rate_radps
-    if a > 0.0:
-        t_lim, v_lim = (speed_max_mps - v0) / a, speed_max_mps
-    elif a < 0.0:
-        t_lim, v_lim = -v0 / a, 0.0
-    else:
-        t_lim, v_lim = math.inf, v0
+    t_lim, v_lim = _speed_limit(v0, a, speed_max_mps)
     T1 = t if t <= t_lim else t_lim
     ic1, is1 = _arc_integrals_scalar(v0, a, heading_rad, w, T1)
     T2 = t - T1

@@ -195,22 +195,27 @@ def _sequence(t: per.MembersType, build: Callable[[Any], NodeEncoder]) -> NodeEn
     return enc
 
 
+def _made(t: Any, leaves: Any, composites: Any, build: Any, fallback: Any) -> Any:
+    """The node function for compiled type `t`: the first kind of `leaves` (maker(t)) or `composites`
+    (maker(t, build), building their members with `build`) it is an instance of, else `fallback`
+    (octet and character strings, SET, open and recursive types: asn1tools)."""
+    for kind, make in leaves:
+        if isinstance(t, kind):
+            return make(t)
+    for kind, make in composites:
+        if isinstance(t, kind):
+            return make(t, build)
+    return fallback
+
+
+_LEAF_ENCODERS = ((uper.Integer, _integer), (per.Boolean, _boolean), (per.Enumerated, _enumerated),
+                  (uper.BitString, _bit_string))  # fmt: skip
+_COMPOSITE_ENCODERS = ((uper.SequenceOf, _sequence_of), (per.Choice, _choice), (per.Sequence, _sequence))
+
+
 def _build(t: Any) -> NodeEncoder:
-    if isinstance(t, uper.Integer):
-        return _integer(t)
-    if isinstance(t, per.Boolean):
-        return _boolean(t)
-    if isinstance(t, per.Enumerated):
-        return _enumerated(t)
-    if isinstance(t, uper.BitString):
-        return _bit_string(t)
-    if isinstance(t, uper.SequenceOf):
-        return _sequence_of(t, _build)
-    if isinstance(t, per.Choice):
-        return _choice(t, _build)
-    if isinstance(t, per.Sequence):
-        return _sequence(t, _build)
-    return _unsupported  # octet and character strings, SET, open and recursive types: asn1tools
+    encoder: NodeEncoder = _made(t, _LEAF_ENCODERS, _COMPOSITE_ENCODERS, _build, _unsupported)
+    return encoder
 
 
 def compile_encoder(compiled_type: Any, generated: bool = True) -> Callable[[Any], bytes]:
@@ -392,22 +397,15 @@ def _sequence_decoder(t: per.MembersType, build: Callable[[Any], NodeDecoder]) -
     return dec
 
 
+_LEAF_DECODERS = ((uper.Integer, _integer_decoder), (per.Boolean, _boolean_decoder),
+                  (per.Enumerated, _enumerated_decoder), (uper.BitString, _bit_string_decoder))  # fmt: skip
+_COMPOSITE_DECODERS = ((uper.SequenceOf, _sequence_of_decoder), (per.Choice, _choice_decoder),
+                       (per.Sequence, _sequence_decoder))  # fmt: skip
+
+
 def _build_decoder(t: Any) -> NodeDecoder:
-    if isinstance(t, uper.Integer):
-        return _integer_decoder(t)
-    if isinstance(t, per.Boolean):
-        return _boolean_decoder(t)
-    if isinstance(t, per.Enumerated):
-        return _enumerated_decoder(t)
-    if isinstance(t, uper.BitString):
-        return _bit_string_decoder(t)
-    if isinstance(t, uper.SequenceOf):
-        return _sequence_of_decoder(t, _build_decoder)
-    if isinstance(t, per.Choice):
-        return _choice_decoder(t, _build_decoder)
-    if isinstance(t, per.Sequence):
-        return _sequence_decoder(t, _build_decoder)
-    return _undecodable
+    decoder: NodeDecoder = _made(t, _LEAF_DECODERS, _COMPOSITE_DECODERS, _build_decoder, _undecodable)
+    return decoder
 
 
 def compile_decoder(compiled_type: Any, generated: bool = True) -> Callable[[bytes], Any]:
