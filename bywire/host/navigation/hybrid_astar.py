@@ -36,6 +36,7 @@ cache) before a process's first plan. The successor set is built once per parame
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 import time
@@ -519,16 +520,13 @@ def _grown(a: np.ndarray, used: int) -> np.ndarray:
 
 
 _KernelPrimitives = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-_KERNEL_PRIMITIVES: dict[int, tuple[MotionPrimitives, _KernelPrimitives]] = {}  # by id, the set kept alive
 
 
+@functools.lru_cache(maxsize=16)  # by the set's identity, as `build_primitives` keeps the sets
 def _primitive_arrays(prims: MotionPrimitives) -> _KernelPrimitives:
-    """The successor sets by steering index as the kernel takes them (kept per set, as `build_primitives`
-    keeps the sets): samples (n_steer, most successors, m, 3), how many successors, their steering
-    indices and directions (padded), and the curvatures."""
-    kept = _KERNEL_PRIMITIVES.get(id(prims))
-    if kept is not None and kept[0] is prims:
-        return kept[1]
+    """The successor sets by steering index as the kernel takes them: samples (n_steer, most
+    successors, m, 3), how many successors, their steering indices and directions (padded), and the
+    curvatures."""
     n_steer = prims.n_steer
     most = max(s.shape[0] for s in prims.samples)
     m = prims.samples[0].shape[1]
@@ -542,11 +540,7 @@ def _primitive_arrays(prims: MotionPrimitives) -> _KernelPrimitives:
         n_succ[i] = k
         to_index[i, :k] = prims.to_index[i]
         direction[i, :k] = prims.direction[i]
-    out = (samples, n_succ, to_index, direction, np.array(prims.kappas, dtype=np.float64))
-    if len(_KERNEL_PRIMITIVES) >= 16:
-        _KERNEL_PRIMITIVES.pop(next(iter(_KERNEL_PRIMITIVES)))
-    _KERNEL_PRIMITIVES[id(prims)] = (prims, out)
-    return out
+    return samples, n_succ, to_index, direction, np.array(prims.kappas, dtype=np.float64)
 
 
 def warm_up() -> None:

@@ -19,7 +19,9 @@ import numpy as np
 __all__ = ["MotionPrimitives", "build_primitives"]
 
 
-@dataclass(frozen=True)
+# eq=False: equal and hashed by identity (its fields are arrays), so a set can key a cache of what is
+# derived from it (the compiled search's padded arrays)
+@dataclass(frozen=True, eq=False)
 class MotionPrimitives:
     kappas: np.ndarray  # (n_steer,) curvatures, 1/m
     arc_m: float
