@@ -184,6 +184,22 @@ class Projection:
     beyond_end: npt.NDArray[np.bool_]
 
 
+def _extrapolate_ends(
+    lane: Lane, xy: FloatArray, s: FloatArray
+) -> list[tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]]:
+    """Set the arc lengths `s` of the points xy (M, 2) past the lane's ends (the path clamps them there)
+    along the end segments' extensions; per end with such points: its direction, anchor and the points."""
+    past = []
+    for end, u, anchor in lane.ends:
+        along = (xy - anchor) @ u
+        hit = along < 0.0 if end == "start" else along > 0.0
+        hit &= (s <= 0.0) if end == "start" else (s >= lane.path.length_m)
+        if np.any(hit):
+            s[hit] = along[hit] + (0.0 if end == "start" else lane.path.length_m)
+            past.append((u, anchor, hit))
+    return past
+
+
 def _project_on(lane: Lane, xy: FloatArray) -> Projection:
     """Foot points of xy (M, 2) on a lane: `Path.project_points`, and beyond the lane's ends the foot point
     on the end segment's extension (the path clamps there; a gap must keep growing past the map's end)."""
@@ -193,16 +209,11 @@ def _project_on(lane: Lane, xy: FloatArray) -> Projection:
     lateral = np.asarray(lateral, dtype=np.float64)
     heading = np.asarray(heading, dtype=np.float64)
     beyond = np.zeros(len(xy), dtype=bool)
-    for end, u, anchor in lane.ends:
-        along = (xy - anchor) @ u
-        hit = along < 0.0 if end == "start" else along > 0.0
-        hit &= (s <= 0.0) if end == "start" else (s >= path.length_m)
-        if np.any(hit):
-            r = xy[hit] - anchor
-            s[hit] = along[hit] + (0.0 if end == "start" else path.length_m)
-            lateral[hit] = u[0] * r[:, 1] - u[1] * r[:, 0]
-            heading[hit] = math.atan2(u[1], u[0])
-            beyond |= hit
+    for u, anchor, hit in _extrapolate_ends(lane, xy, s):
+        r = xy[hit] - anchor
+        lateral[hit] = u[0] * r[:, 1] - u[1] * r[:, 0]
+        heading[hit] = math.atan2(u[1], u[0])
+        beyond |= hit
     foot_heading = heading
     fx = xy[:, 0] + lateral * np.sin(foot_heading)
     fy = xy[:, 1] - lateral * np.cos(foot_heading)
@@ -338,12 +349,7 @@ class LaneMap:
         pts = np.atleast_2d(np.asarray(xy, dtype=np.float64))
         path = lane.path
         s = np.asarray(path.project_points_s(pts[:, 0], pts[:, 1]), dtype=np.float64)
-        for end, u, anchor in lane.ends:
-            along = (pts - anchor) @ u
-            hit = along < 0.0 if end == "start" else along > 0.0
-            hit &= (s <= 0.0) if end == "start" else (s >= path.length_m)
-            if np.any(hit):
-                s[hit] = along[hit] + (0.0 if end == "start" else path.length_m)
+        _extrapolate_ends(lane, pts, s)
         return s
 
     def project_s(self, lane_id: int, x_m: float, y_m: float) -> float:
