@@ -380,22 +380,16 @@ def _transition(x: FloatArray, dt: float) -> FloatArray:
     return phi
 
 
-_MEASUREMENT_MATRICES: dict[tuple[tuple[int, ...], tuple[float, ...]], tuple[FloatArray, FloatArray]] = {}
-
-
+@functools.lru_cache(maxsize=64)
 def _measurement_matrices(rows: tuple[int, ...], r: tuple[float, ...]) -> tuple[FloatArray, FloatArray]:
     """H (which state components a message measured) and R (their variances): a handful of
-    combinations, built once each (read-only: every update shares them)."""
-    key = (rows, r)
-    found = _MEASUREMENT_MATRICES.get(key)
-    if found is None:
-        H = np.zeros((len(rows), 6))
-        H[np.arange(len(rows)), list(rows)] = 1.0
-        R = np.diag(r)
-        H.setflags(write=False)
-        R.setflags(write=False)
-        found = _MEASUREMENT_MATRICES[key] = (H, R)
-    return found
+    combinations per configuration, built once each (read-only: every update shares them)."""
+    H = np.zeros((len(rows), 6))
+    H[np.arange(len(rows)), list(rows)] = 1.0
+    R = np.diag(r)
+    H.setflags(write=False)
+    R.setflags(write=False)
+    return H, R
 
 
 class VehicleTrack:
