@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import bisect
 import collections
+import functools
 import math
 import struct
 from collections.abc import Callable
@@ -238,18 +239,11 @@ def header_value(message_id: int, protocol_version: int, owner: str, station_id:
     }
 
 
-# (spec, type name) -> the spec and its `fast_uper` encoder or decoder (the spec kept: its id is
-# unique while it lives)
-_FAST_ENCODERS: dict[tuple[int, str], tuple[Any, Callable[[Any], bytes]]] = {}
-_FAST_DECODERS: dict[tuple[int, str], tuple[Any, Callable[[bytes], Any]]] = {}
-
-
+# A compiled spec's `fast_uper` decoder and encoder per type, built once (a spec is keyed, and kept, by
+# its identity)
+@functools.lru_cache(maxsize=32)
 def _fast_decoder(spec: Any, type_name: str) -> Callable[[bytes], Any]:
-    entry = _FAST_DECODERS.get((id(spec), type_name))
-    if entry is None or entry[0] is not spec:
-        entry = (spec, compile_decoder(spec.types[type_name]))
-        _FAST_DECODERS[(id(spec), type_name)] = entry
-    return entry[1]
+    return compile_decoder(spec.types[type_name])
 
 
 def asn1_decode(spec: Any, type_name: str, data: bytes, what: str, fast: bool = False) -> dict[str, Any]:
@@ -272,12 +266,9 @@ def asn1_decode(spec: Any, type_name: str, data: bytes, what: str, fast: bool = 
     return value
 
 
+@functools.lru_cache(maxsize=32)
 def _fast_encoder(spec: Any, type_name: str) -> Callable[[Any], bytes]:
-    entry = _FAST_ENCODERS.get((id(spec), type_name))
-    if entry is None or entry[0] is not spec:
-        entry = (spec, compile_encoder(spec.types[type_name]))
-        _FAST_ENCODERS[(id(spec), type_name)] = entry
-    return entry[1]
+    return compile_encoder(spec.types[type_name])
 
 
 def asn1_encode(spec: Any, type_name: str, value: dict[str, Any], what: str, fast: bool = False) -> bytes:

@@ -250,6 +250,22 @@ def _read(big: int, total: int, pos: int, n: int) -> int:
     return (big >> (total - end)) & ((1 << n) - 1)
 
 
+def _read_size(big: int, total: int, pos: int, ext: int, lo: int, hi: int, size_bits: int) -> tuple[int, int]:
+    """A constrained size (a bit string's bits, a list's items) at `pos`, within its root: the size and
+    the position after it."""
+    if ext:
+        if _read(big, total, pos, 1):
+            raise Unsupported
+        pos += 1
+    n = lo
+    if lo != hi:
+        n += _read(big, total, pos, size_bits)
+        pos += size_bits
+    if n > hi:
+        raise Unsupported
+    return n, pos
+
+
 def _undecodable(big: int, total: int, pos: int) -> tuple[Any, int]:
     raise Unsupported
 
@@ -305,16 +321,7 @@ def _bit_string_decoder(t: uper.BitString) -> NodeDecoder:
     ext = 1 if t.has_extension_marker else 0
 
     def dec(big: int, total: int, pos: int) -> tuple[Any, int]:
-        if ext:
-            if _read(big, total, pos, 1):
-                raise Unsupported
-            pos += 1
-        n = lo
-        if lo != hi:
-            n += _read(big, total, pos, size_bits)
-            pos += size_bits
-        if n > hi:
-            raise Unsupported
+        n, pos = _read_size(big, total, pos, ext, lo, hi, size_bits)
         bits = _read(big, total, pos, n)
         pad = -n % 8
         return ((bits << pad).to_bytes((n + pad) // 8, "big"), n), pos + n
@@ -330,16 +337,7 @@ def _sequence_of_decoder(t: uper.SequenceOf, build: Callable[[Any], NodeDecoder]
     element = build(t.element_type)
 
     def dec(big: int, total: int, pos: int) -> tuple[Any, int]:
-        if ext:
-            if _read(big, total, pos, 1):
-                raise Unsupported
-            pos += 1
-        length = lo
-        if lo != hi:
-            length += _read(big, total, pos, size_bits)
-            pos += size_bits
-        if length > hi:
-            raise Unsupported
+        length, pos = _read_size(big, total, pos, ext, lo, hi, size_bits)
         out = []
         for _ in range(length):
             item, pos = element(big, total, pos)
