@@ -91,6 +91,12 @@ COMMANDS: tuple[Command, ...] = (
         "bywire.hil.campaign.campaign_cli",
         "report",
     ),
+    Command(
+        "campaign compare",
+        "two executions of a campaign run by run: regressions, fixes, changed metrics and trajectories",
+        "bywire.hil.campaign.campaign_cli",
+        "compare",
+    ),
     Command("campaign list", "list the shipped campaigns", "bywire.hil.campaign.campaign_cli", "list"),
     Command("bench", "benchmarks"),
     Command("bench ecu", "ECU loop timing with plant and host running (three-process HIL)", "benchmarks.ecu"),

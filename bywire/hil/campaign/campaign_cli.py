@@ -4,7 +4,9 @@ their parameters, on this machine's cores or a Ray cluster, and what they add up
 Exit status (README "Exit status"): `run` 0 when every run passed, 1 when one failed or raised, 2 for a
 bad campaign file, folder or address, 128 + N when stopped by signal N (what finished is kept: resume
 with `--resume DIR`); `report` 0 when every run passed, 1 otherwise, 2 for a folder that holds no
-campaign.
+campaign; `compare` 0 when no run that passed in BASE fails in NEW (with `--identical`: when every
+matched run is the same, bit for bit, but for the wall clock's columns), 1 otherwise, 2 for folders
+that hold no campaign or no run in common.
 """
 
 from __future__ import annotations
@@ -130,6 +132,78 @@ def main_report(args: argparse.Namespace) -> int:
     return 0 if summary["failed"] == 0 else 1
 
 
+def add_compare_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("base", type=Path, help="a campaign's folder: the reference (an older commit, say)")
+    p.add_argument("new", type=Path, help="a folder of the same campaign, run again (this commit)")
+    p.add_argument(
+        "--json",
+        type=Path,
+        help="write the comparison as JSON to this file (`-`: to stdout, and nothing else there)",
+    )
+    p.add_argument(
+        "--identical",
+        action="store_true",
+        help="fail (exit 1) unless every matched run is the same but for the wall clock's columns: a change "
+        "meant to keep behaviour (a speed-up, a refactoring) proved on a whole campaign",
+    )
+
+
+def main_compare(args: argparse.Namespace) -> int:
+    import json
+
+    from bywire.hil.campaign.compare import compare
+
+    result = compare(args.base, args.new)
+    to_stdout = args.json is not None and str(args.json) == "-"
+    if args.json is not None:
+        text = json.dumps(result, indent=2, default=str) + "\n"
+        if to_stdout:
+            sys.stdout.write(text)
+        else:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(text, encoding="utf-8")
+    _print_comparison(result, sys.stderr if to_stdout else sys.stdout)
+    if result["regressions"]:
+        return 1
+    if args.identical and (result["identical"] != result["matched"] or result["only_in_base"]):
+        return 1
+    return 0
+
+
+def _print_comparison(result: dict[str, Any], out: Any) -> None:
+    base, new = result["base"], result["new"]
+    print(
+        f"{base['campaign']} ({', '.join(base['code_versions'])}) -> {new['campaign']} "
+        f"({', '.join(new['code_versions'])}): {result['matched']} runs matched, "
+        f"{len(result['only_in_base'])} only in {base['folder']}, {len(result['only_in_new'])} only in "
+        f"{new['folder']}",
+        file=out,
+    )
+    print(f"  identical but for the wall clock: {result['identical']} of {result['matched']}", file=out)
+    t = result["trajectories"]
+    if t["compared"]:
+        print(f"  trajectories: {t['same']} the same, {len(t['changed'])} changed", file=out)
+    print(f"  regressions: {len(result['regressions'])}, fixes: {len(result['fixes'])}", file=out)
+    for kind in ("regressions", "fixes"):
+        for r in result[kind]:
+            checks = r["newly_failed_checks"] if kind == "regressions" else r["newly_passed_checks"]
+            what = ", ".join(checks) or r.get("new_error") or r.get("base_error") or ""
+            print(
+                f"  {kind[:-1]} #{r['index']} {r['sweep']}: {r['base_verdict']} -> {r['new_verdict']} {what}",
+                file=out,
+            )
+            print(f"    {r['command']}", file=out)
+    for metric, m in result["metrics"].items():
+        line = f"  metric {metric}: changed in {m['runs_changed']} runs"
+        if m["max_abs_change"] is not None:
+            at = m["at"]
+            line += f", most by {m['max_abs_change']:.6g} (#{at['index']}: {at['base']:.6g}"
+            line += f" -> {at['new']:.6g})"
+        if "worse" in m:
+            line += f"; towards its limit in {m['worse']}, away in {m['better']}"
+        print(line, file=out)
+
+
 def main_list(args: argparse.Namespace) -> int:
     import yaml
 
@@ -163,4 +237,12 @@ def _print_summary(summary: dict[str, Any], out: Any) -> None:
         print(f"    {w['command']}", file=out)
 
 
-__all__ = ["add_report_arguments", "add_run_arguments", "main_list", "main_report", "main_run"]
+__all__ = [
+    "add_compare_arguments",
+    "add_report_arguments",
+    "add_run_arguments",
+    "main_compare",
+    "main_list",
+    "main_report",
+    "main_run",
+]

@@ -114,7 +114,7 @@ def _rate(passed: int, runs: int) -> float:
     return round(passed / runs, 4) if runs else 0.0
 
 
-def _judged_metrics(record: dict[str, Any]) -> list[tuple[str, str, Any]]:
+def judged_metrics(record: dict[str, Any]) -> list[tuple[str, str, Any]]:
     """(metric, op, limit) of the numeric checks of a run: its scenario's and the campaign's."""
     from bywire.hil.scenario import load_scenario, parse_check
 
@@ -169,7 +169,7 @@ def summarise(folder: Path, worst: int = 10) -> dict[str, Any]:
     judged_by_sweep: dict[str, list[tuple[str, str, Any]]] = {}
     for r in records:
         if r["row"]["sweep"] not in judged_by_sweep:
-            judged_by_sweep[r["row"]["sweep"]] = _judged_metrics(r)
+            judged_by_sweep[r["row"]["sweep"]] = judged_metrics(r)
     for sweep, judged in judged_by_sweep.items():
         for metric, op, limit in judged:
             values = [
@@ -251,7 +251,7 @@ def _plots(folder: Path, out: Path) -> list[Path]:
     written: list[Path] = []
     for sweep, recs in sweeps.items():
         judged = [
-            j for j in _judged_metrics(recs[0]) if any(_numeric([r["row"].get(f"m.{j[0]}")]) for r in recs)
+            j for j in judged_metrics(recs[0]) if any(_numeric([r["row"].get(f"m.{j[0]}")]) for r in recs)
         ][:MAX_METRICS_PLOTTED]
         params = [k for k in recs[0]["run"]["params"] if _numeric([r["run"]["params"].get(k) for r in recs])]
         params = [k for k in params if len({r["run"]["params"].get(k) for r in recs}) > 1][
@@ -320,4 +320,4 @@ def _plots(folder: Path, out: Path) -> list[Path]:
     return written
 
 
-__all__ = ["reproduce_command", "summarise", "write_report"]
+__all__ = ["judged_metrics", "reproduce_command", "summarise", "write_report"]

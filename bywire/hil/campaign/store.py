@@ -103,7 +103,13 @@ def load_records(folder: Path) -> list[dict[str, Any]]:
     records = []
     for path in (folder / RUNS).glob("*.json"):
         if path.stem in order:
-            records.append(json.loads(path.read_text(encoding="utf-8")))
+            try:
+                record = json.loads(path.read_text(encoding="utf-8"))
+                if not isinstance(record, dict) or "run_id" not in (record.get("row") or {}):
+                    raise ValueError("not a run's record (no row with a run_id)")
+            except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+                raise StoreError(f"{path}: unreadable: {exc}") from None
+            records.append(record)
     records.sort(key=lambda r: order[r["row"]["run_id"]])
     return records
 

@@ -26,7 +26,13 @@ import pytest
 from shared_data import shared_data_dir
 
 from bywire.protocol.v2x import codec
-from bywire.protocol.v2x.codec import DriveDirection, V2xDecodeError, V2xEncodeError, VehicleState, asn1_decode
+from bywire.protocol.v2x.codec import (
+    DriveDirection,
+    V2xDecodeError,
+    V2xEncodeError,
+    VehicleState,
+    asn1_decode,
+)
 from bywire.protocol.v2x.etsi_cam import cam_value
 from bywire.protocol.v2x.iclcm import TYPE_NAME as ICLCM
 from bywire.protocol.v2x.iclcm import ControllerType, CooperativeState, iclcm_value
@@ -72,7 +78,8 @@ def built_cams(rng: random.Random, n: int) -> list[bytes]:
             station_type=rng.choice((0, 5, 8, 15)),
         )
         try:
-            out.append(codec.asn1_encode(spec, "CAM", cam_value(state, low_frequency=bool(i % 3 == 0)), "CAM"))
+            value = cam_value(state, low_frequency=i % 3 == 0)
+            out.append(codec.asn1_encode(spec, "CAM", value, "CAM"))
         except V2xEncodeError:
             continue
     return out
@@ -133,7 +140,7 @@ def verdict(spec: Any, type_name: str, data: bytes, fast: bool) -> tuple[str, ..
         return ("value", repr(asn1_decode(spec, type_name, data, type_name, fast=fast)))
     except V2xDecodeError as e:
         return ("refused", str(e.reason), str(e))
-    except Exception as e:  # noqa: BLE001 - any other exception is the finding
+    except Exception as e:  # any other exception is the finding
         return ("raised", type(e).__name__, str(e))
 
 
@@ -173,7 +180,9 @@ def campaign(seed: int, n: int) -> Tally:
             tally.refused += 1
         if mine != reference or mine[0] == "raised":
             assert tally.disagreements is not None
-            tally.disagreements.append(f"{type_name} {data.hex()}: fast {mine!r}, asn1tools alone {reference!r}")
+            tally.disagreements.append(
+                f"{type_name} {data.hex()}: fast {mine!r}, asn1tools alone {reference!r}"
+            )
     return tally
 
 
