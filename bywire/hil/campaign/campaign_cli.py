@@ -114,22 +114,29 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main_report(args: argparse.Namespace) -> int:
-    import json
 
     from bywire.hil.campaign.report import summarise, write_report
 
     summary = summarise(args.dir, worst=args.worst)
     write_report(args.dir, summary)
-    to_stdout = args.json is not None and str(args.json) == "-"
-    if args.json is not None:
-        text = json.dumps(summary, indent=2, default=str) + "\n"
-        if to_stdout:
-            sys.stdout.write(text)
-        else:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(text, encoding="utf-8")
-    _print_summary(summary, sys.stderr if to_stdout else sys.stdout)
+    _print_summary(summary, _write_json(summary, args.json))
     return 0 if summary["failed"] == 0 else 1
+
+
+def _write_json(document: dict[str, Any], path: Path | None) -> Any:
+    """`document` as JSON to `path` (`-`: stdout); the stream the text goes to (stderr when stdout is
+    the JSON's)."""
+    import json
+
+    if path is None:
+        return sys.stdout
+    text = json.dumps(document, indent=2, default=str) + "\n"
+    if str(path) == "-":
+        sys.stdout.write(text)
+        return sys.stderr
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text, encoding="utf-8")
+    return sys.stdout
 
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
@@ -149,20 +156,10 @@ def add_compare_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main_compare(args: argparse.Namespace) -> int:
-    import json
-
     from bywire.hil.campaign.compare import compare
 
     result = compare(args.base, args.new)
-    to_stdout = args.json is not None and str(args.json) == "-"
-    if args.json is not None:
-        text = json.dumps(result, indent=2, default=str) + "\n"
-        if to_stdout:
-            sys.stdout.write(text)
-        else:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(text, encoding="utf-8")
-    _print_comparison(result, sys.stderr if to_stdout else sys.stdout)
+    _print_comparison(result, _write_json(result, args.json))
     if result["regressions"]:
         return 1
     if args.identical and (result["identical"] != result["matched"] or result["only_in_base"]):

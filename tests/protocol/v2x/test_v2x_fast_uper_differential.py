@@ -18,7 +18,7 @@ import base64
 import json
 import math
 import random
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,11 +57,21 @@ def _maybe(rng: random.Random, lo: float, hi: float) -> float | None:
     return None if rng.random() < 0.15 else rng.uniform(lo, hi)
 
 
-def built_cams(rng: random.Random, n: int) -> list[bytes]:
-    """CAMs our encoder makes of random states (each field unavailable now and then)."""
-    spec = compiled(SchemaSet.CAM_V2)
+def _encoded(type_name: str, spec: Any, value: Callable[[int], Any], n: int) -> list[bytes]:
+    """`n` values our encoder takes (those it refuses left out)."""
     out = []
     for i in range(n):
+        try:
+            out.append(codec.asn1_encode(spec, type_name, value(i), type_name))
+        except V2xEncodeError:
+            continue
+    return out
+
+
+def built_cams(rng: random.Random, n: int) -> list[bytes]:
+    """CAMs our encoder makes of random states (each field unavailable now and then)."""
+
+    def value(i: int) -> Any:
         state = VehicleState(
             station_id=rng.randrange(1 << 32),
             generation_time_s=rng.uniform(1.1e9, 3.9e9),
@@ -77,33 +87,27 @@ def built_cams(rng: random.Random, n: int) -> list[bytes]:
             lane_position=rng.choice((None, -1, 0, 1, 2, 14)),
             station_type=rng.choice((0, 5, 8, 15)),
         )
-        try:
-            value = cam_value(state, low_frequency=i % 3 == 0)
-            out.append(codec.asn1_encode(spec, "CAM", value, "CAM"))
-        except V2xEncodeError:
-            continue
-    return out
+        return cam_value(state, low_frequency=i % 3 == 0)
+
+    return _encoded("CAM", compiled(SchemaSet.CAM_V2), value, n)
 
 
 def built_iclcms(rng: random.Random, n: int) -> list[bytes]:
-    spec = compiled(SchemaSet.ICLCM)
-    out = []
-    for _ in range(n):
-        msg = CooperativeState(
-            station_id=rng.randrange(1 << 32),
-            generation_time_s=rng.uniform(1.6e9, 1.8e9),
-            controller_type=rng.choice(list(ControllerType)),
-            target_accel_mps2=_maybe(rng, -10.0, 10.0),
-            time_headway_s=_maybe(rng, 0.0, 2.0),
-            cruise_speed_mps=_maybe(rng, 0.0, 49.0),
-            lane=rng.choice((None, 1, 2, 3)),
-            participants_ready=rng.choice((None, True, False)),
+    def value(_: int) -> Any:
+        return iclcm_value(
+            CooperativeState(
+                station_id=rng.randrange(1 << 32),
+                generation_time_s=rng.uniform(1.6e9, 1.8e9),
+                controller_type=rng.choice(list(ControllerType)),
+                target_accel_mps2=_maybe(rng, -10.0, 10.0),
+                time_headway_s=_maybe(rng, 0.0, 2.0),
+                cruise_speed_mps=_maybe(rng, 0.0, 49.0),
+                lane=rng.choice((None, 1, 2, 3)),
+                participants_ready=rng.choice((None, True, False)),
+            )
         )
-        try:
-            out.append(codec.asn1_encode(spec, ICLCM, iclcm_value(msg), ICLCM))
-        except V2xEncodeError:
-            continue
-    return out
+
+    return _encoded(ICLCM, compiled(SchemaSet.ICLCM), value, n)
 
 
 def mutated(rng: random.Random, data: bytes) -> bytes:
