@@ -13,10 +13,14 @@ import shutil
 from pathlib import Path
 
 import pytest
+from fuzz_util import mutate
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from bywire.cli import main
 from bywire.hil.campaign import runner, store
 from bywire.hil.campaign.compare import compare
+from bywire.hil.campaign.report import summarise
 from bywire.hil.campaign.spec import load_campaign
 from bywire.hil.scenario import builtin_scenarios
 
@@ -140,3 +144,24 @@ def test_folders_without_a_campaign_or_a_run_in_common_are_refused(
     bad.write_text("{not json")
     assert main(["campaign", "compare", str(executions["base"]), str(broken)]) == 2
     assert f"{bad}: unreadable" in capsys.readouterr().err
+
+
+@given(data=st.data())
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_a_hostile_run_file_is_refused_by_name_or_read_but_never_crashes_a_reader(
+    executions: dict[str, Path], tmp_path_factory: pytest.TempPathFactory, data: st.DataObject
+) -> None:
+    """A run's file edited by hand, merged from elsewhere or cut short: `report` and `compare` read it,
+    or refuse it with a ValueError (the command's exit 2, `error: FILE: ...`), never another exception."""
+    folder = tmp_path_factory.mktemp("hostile") / "c"
+    shutil.copytree(executions["base"], folder)
+    path = sorted((folder / "runs").glob("*.json"))[data.draw(st.integers(0, 1))]
+    record = json.loads(path.read_text())
+    for _ in range(data.draw(st.integers(1, 3))):
+        record = mutate(record, data.draw)
+    path.write_text(json.dumps(record))
+    for read in (lambda: summarise(folder), lambda: compare(executions["base"], folder)):
+        try:
+            read()
+        except ValueError as exc:
+            assert str(exc)

@@ -171,7 +171,7 @@ def _print_comparison(result: dict[str, Any], out: Any) -> None:
     base, new = result["base"], result["new"]
     print(
         f"{base['campaign']} ({', '.join(base['code_versions'])}) -> {new['campaign']} "
-        f"({', '.join(new['code_versions'])}): {result['matched']} runs matched, "
+        f"({', '.join(new['code_versions'])}): runs matched {result['matched']}, "
         f"{len(result['only_in_base'])} only in {base['folder']}, {len(result['only_in_new'])} only in "
         f"{new['folder']}",
         file=out,

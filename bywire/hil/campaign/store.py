@@ -97,6 +97,51 @@ def save_record(folder: Path, record: dict[str, Any]) -> None:
     write_atomic(folder / RUNS / f"{run_id}.json", text.encode())
 
 
+# What the readers of a run's record (report, compare, the table) take from it, and its type: a file
+# edited by hand, merged from another machine or cut short is refused by name, not met as a KeyError.
+_RECORD_PARTS: dict[str, type] = {"row": dict, "run": dict, "checks": list}
+_ROW_FIELDS: dict[str, type] = {
+    "run_id": str,
+    "index": int,
+    "sweep": str,
+    "scenario": str,
+    "verdict": str,
+    "failed_checks": str,
+}
+_RUN_FIELDS: dict[str, type] = {
+    "scenario": str,
+    "source": str,
+    "params": dict,
+    "options": dict,
+    "overrides": dict,
+    "checks": list,
+    "invariants": list,
+}
+VERDICTS = ("pass", "fail", "error")
+
+
+def record_problem(record: Any, run_id: str) -> str | None:
+    """What is wrong with `record` as the record of run `run_id` (its file's name), None if nothing."""
+    if not isinstance(record, dict):
+        return f"expected an object, got {type(record).__name__}"
+    for part, kind in _RECORD_PARTS.items():
+        if not isinstance(record.get(part), kind):
+            return f"{part}: expected {kind.__name__}, got {type(record.get(part)).__name__}"
+    for fields, part in ((_ROW_FIELDS, "row"), (_RUN_FIELDS, "run")):
+        for name, kind in fields.items():
+            value = record[part].get(name)
+            if not isinstance(value, kind) or (isinstance(value, bool) and kind is int):
+                return f"{part}.{name}: expected {kind.__name__}, got {value!r:.60}"
+    if record["row"]["run_id"] != run_id:
+        return f"row.run_id: {record['row']['run_id']!r} in the file of run {run_id!r}"
+    if record["row"]["verdict"] not in VERDICTS:
+        return f"row.verdict: expected one of {', '.join(VERDICTS)}, got {record['row']['verdict']!r:.60}"
+    for i, check in enumerate(record["checks"]):
+        if not isinstance(check, dict) or not isinstance(check.get("name"), str):
+            return f"checks[{i}]: expected an object with a name"
+    return None
+
+
 def load_records(folder: Path) -> list[dict[str, Any]]:
     """Every finished run's record of the campaign in `folder`, in the campaign's order."""
     order = {rid: i for i, rid in enumerate(read_manifest(folder)["run_ids"])}
@@ -105,10 +150,11 @@ def load_records(folder: Path) -> list[dict[str, Any]]:
         if path.stem in order:
             try:
                 record = json.loads(path.read_text(encoding="utf-8"))
-                if not isinstance(record, dict) or "run_id" not in (record.get("row") or {}):
-                    raise ValueError("not a run's record (no row with a run_id)")
             except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
                 raise StoreError(f"{path}: unreadable: {exc}") from None
+            problem = record_problem(record, path.stem)
+            if problem is not None:
+                raise StoreError(f"{path}: not a run's record as a worker writes it: {problem}")
             records.append(record)
     records.sort(key=lambda r: order[r["row"]["run_id"]])
     return records
