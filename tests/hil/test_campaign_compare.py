@@ -165,3 +165,20 @@ def test_a_hostile_run_file_is_refused_by_name_or_read_but_never_crashes_a_reade
             read()
         except ValueError as exc:
             assert str(exc)
+
+
+@pytest.mark.parametrize(
+    "manifest",
+    [{"format": "bywire.campaign/1", "name": 3, "run_ids": []}, {"format": "bywire.campaign/1", "name": "x"}],
+)
+def test_a_manifest_without_its_name_or_runs_is_refused_by_name(
+    executions: dict[str, Path],
+    tmp_path: Path,
+    manifest: dict[str, object],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    folder = tmp_path / "c"
+    shutil.copytree(executions["base"], folder)
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["campaign", "compare", str(executions["base"]), str(folder)]) == 2
+    assert f"{folder / 'manifest.json'}: " in capsys.readouterr().err

@@ -70,6 +70,11 @@ def read_manifest(folder: Path) -> dict[str, Any]:
         raise StoreError(f"{path}: unreadable: {exc}") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise StoreError(f"{path}: not a {FORMAT} manifest")
+    if not isinstance(manifest.get("name"), str):
+        raise StoreError(f"{path}: name: expected the campaign's name")
+    ids = manifest.get("run_ids")
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise StoreError(f"{path}: run_ids: expected a list of run ids")
     return manifest
 
 
