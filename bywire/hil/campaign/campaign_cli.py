@@ -114,7 +114,6 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main_report(args: argparse.Namespace) -> int:
-
     from bywire.hil.campaign.report import summarise, write_report
 
     summary = summarise(args.dir, worst=args.worst)

@@ -8,7 +8,8 @@ says which runs changed, and how.
 
 The summary (`compare`, the JSON of `bywire campaign compare --json`) is a contract: `base` and `new`
 (each: `folder`, `campaign`, `runs`, `code_versions`), `matched`, `only_in_base` and `only_in_new` (run
-ids), `identical` (matched runs whose every column but the wall clock's is equal, bit for bit),
+ids), `identical` (matched runs whose every column but the wall clock's and `code_version` is equal,
+bit for bit),
 `regressions` (a run that passed in BASE and fails or raises in NEW) and `fixes` (the reverse), each
 with the run's `run_id`, `index`, `sweep`, `scenario`, `params`, both verdicts, the checks that newly
 fail (or pass), and the `command` that reruns it alone; `trajectories` (`compared`, `same`, `changed`:
