@@ -33,9 +33,10 @@ def test_a_campaign_at_this_commit_is_identical_to_this_checkout(tmp_path: Path)
         assert done.returncode == 0, done.stdout + done.stderr
         assert "identical but for the wall clock: 2 of 2" in done.stdout
     assert not (tmp_path / "out" / "base-src").exists()  # the worktree is removed
-    assert "base-src" not in subprocess.run(
-        ["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True
-    ).stdout
+    assert (
+        "base-src"
+        not in subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
+    )
 
 
 def test_a_base_git_does_not_know_is_refused() -> None:
