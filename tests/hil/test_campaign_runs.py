@@ -208,3 +208,31 @@ def test_a_run_that_raises_is_a_row_with_its_error(tmp_path: Path) -> None:
     assert row["verdict"] == "error"
     assert "ScenarioError" in row["error"] and "replay" in row["error"]
     assert os.path.isfile(tmp_path / "out" / "results.parquet")
+
+
+def test_a_damaged_run_file_is_set_aside_on_resume_and_its_run_done_again(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    spec = tmp_path / "two.yaml"
+    spec.write_text(
+        "name: two\nsweeps:\n  - scenario: accel_steps\n    set: {duration_s: 2.0}\n"
+        "    grid: {seed: [1, 2]}\n",
+        encoding="utf-8",
+    )
+    out = tmp_path / "out"
+    _run(spec, out, None)
+    first, second = sorted((out / "runs").glob("*.json"))
+    before = json.loads(first.read_text())
+    first.write_text('{"row": {"run_id": "cut sh')  # damaged on disk, or edited by hand
+    untouched = second.read_bytes()
+    capsys.readouterr()
+    assert main(["campaign", "run", str(spec), "--resume", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert f"{first}.unreadable: not a run's record" in err and "1 done before, 1 to run" in err
+    assert (out / "runs" / f"{first.name}.unreadable").read_text() == '{"row": {"run_id": "cut sh'
+    assert second.read_bytes() == untouched  # the good run was not run again
+    again = json.loads(first.read_text())
+    assert {k: v for k, v in again["row"].items() if k not in WALL_CLOCK_COLUMNS} == {
+        k: v for k, v in before["row"].items() if k not in WALL_CLOCK_COLUMNS
+    }
+    assert store.read_results(out).num_rows == 2

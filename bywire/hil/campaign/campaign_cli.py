@@ -64,7 +64,14 @@ def main_run(args: argparse.Namespace) -> int:
         raise ValueError(f"campaign run: --workers {args.workers}: expected 1 or more")
     folder: Path = args.resume or args.out
     campaign, runs, text = load_campaign(args.spec)
-    todo = runner.prepare(folder, campaign, runs, text, resume=args.resume is not None)
+    todo = runner.prepare(
+        folder,
+        campaign,
+        runs,
+        text,
+        resume=args.resume is not None,
+        notice=lambda line: print(f"campaign {campaign.name}: {line}", file=sys.stderr),
+    )
     print(
         f"campaign {campaign.name}: {len(runs)} runs, {len(runs) - len(todo)} done before, "
         f"{len(todo)} to run on {args.address or 'this machine'} -> {folder}",

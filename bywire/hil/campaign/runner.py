@@ -35,8 +35,16 @@ class Outcome:
         return self.skipped + self.ran
 
 
-def prepare(folder: Path, campaign: Campaign, runs: list[Run], spec_text: str, resume: bool) -> list[Run]:
-    """The campaign's folder made or checked; the runs still to do."""
+def prepare(
+    folder: Path,
+    campaign: Campaign,
+    runs: list[Run],
+    spec_text: str,
+    resume: bool,
+    notice: Callable[[str], None] | None = None,
+) -> list[Run]:
+    """The campaign's folder made or checked; the runs still to do. On resume a run file that cannot be
+    read is set aside (`store.set_aside_unreadable`, said through `notice`) and its run done again."""
     ids = [r.run_id for r in runs]
     if len(set(ids)) != len(ids):
         dup = next(r for r in runs if ids.count(r.run_id) > 1)
@@ -46,6 +54,9 @@ def prepare(folder: Path, campaign: Campaign, runs: list[Run], spec_text: str, r
         )
     if resume:
         store.check_resume(folder, campaign.name, ids)
+        for path in store.set_aside_unreadable(folder):
+            if notice is not None:
+                notice(f"{path}: not a run's record as a worker writes it; set aside, its run runs again")
         done = store.done_ids(folder)
         return [r for r in runs if r.run_id not in done]
     store.create(folder, campaign.name, spec_text, ids, code_version())

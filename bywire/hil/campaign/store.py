@@ -95,6 +95,28 @@ def done_ids(folder: Path) -> set[str]:
     return {p.stem for p in (folder / RUNS).glob("*.json")}
 
 
+def set_aside_unreadable(folder: Path) -> list[Path]:
+    """Each run file of `folder` that is not a run's record as a worker writes it (one edited by hand or
+    damaged on disk: an interrupted write never leaves one) renamed to `ID.json.unreadable[-N]`, so that
+    a resumed campaign runs that run again without losing the file; the new names."""
+    moved: list[Path] = []
+    for path in sorted((folder / RUNS).glob("*.json")):
+        try:
+            problem = record_problem(json.loads(path.read_text(encoding="utf-8")), path.stem)
+        except (OSError, ValueError) as exc:
+            problem = str(exc)
+        if problem is None:
+            continue
+        target = path.with_name(f"{path.name}.unreadable")
+        n = 1
+        while target.exists():
+            n += 1
+            target = path.with_name(f"{path.name}.unreadable-{n}")
+        os.replace(path, target)
+        moved.append(target)
+    return moved
+
+
 def save_record(folder: Path, record: dict[str, Any]) -> None:
     """A finished run's record (`worker.run_one`'s), atomically."""
     run_id = record["row"]["run_id"]
@@ -254,5 +276,6 @@ __all__ = [
     "read_manifest",
     "read_results",
     "save_record",
+    "set_aside_unreadable",
     "write_results",
 ]
