@@ -101,11 +101,7 @@ def set_aside_unreadable(folder: Path) -> list[Path]:
     a resumed campaign runs that run again without losing the file; the new names."""
     moved: list[Path] = []
     for path in sorted((folder / RUNS).glob("*.json")):
-        try:
-            problem = record_problem(json.loads(path.read_text(encoding="utf-8")), path.stem)
-        except (OSError, ValueError) as exc:
-            problem = str(exc)
-        if problem is None:
+        if _read_record(path)[1] is None:
             continue
         target = path.with_name(f"{path.name}.unreadable")
         n = 1
@@ -169,19 +165,25 @@ def record_problem(record: Any, run_id: str) -> str | None:
     return None
 
 
+def _read_record(path: Path) -> tuple[Any, str | None]:
+    """A run file's record, and what is wrong with it (None: nothing)."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        return None, f"unreadable: {exc}"
+    problem = record_problem(record, path.stem)
+    return record, None if problem is None else f"not a run's record as a worker writes it: {problem}"
+
+
 def load_records(folder: Path) -> list[dict[str, Any]]:
     """Every finished run's record of the campaign in `folder`, in the campaign's order."""
     order = {rid: i for i, rid in enumerate(read_manifest(folder)["run_ids"])}
     records = []
     for path in (folder / RUNS).glob("*.json"):
         if path.stem in order:
-            try:
-                record = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-                raise StoreError(f"{path}: unreadable: {exc}") from None
-            problem = record_problem(record, path.stem)
+            record, problem = _read_record(path)
             if problem is not None:
-                raise StoreError(f"{path}: not a run's record as a worker writes it: {problem}")
+                raise StoreError(f"{path}: {problem}")
             records.append(record)
     records.sort(key=lambda r: order[r["row"]["run_id"]])
     return records
