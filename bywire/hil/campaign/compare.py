@@ -89,7 +89,7 @@ def compare(base_folder: Path, new_folder: Path) -> dict[str, Any]:
     new_records = store.load_records(new_folder)
     base = {r["row"]["run_id"]: r for r in base_records}
     new = {r["row"]["run_id"]: r for r in new_records}
-    matched = [rid for rid in new if rid in base]
+    matched = [rid for rid in new if rid in base]  # in the campaign's order: regressions and fixes too
     if (base_records or new_records) and not matched:
         raise store.StoreError(
             f"{base_folder} ({_side(base_folder, base_records)['campaign']}) and {new_folder} "
@@ -111,32 +111,30 @@ def compare(base_folder: Path, new_folder: Path) -> dict[str, Any]:
         elif brow["verdict"] != PASSING and nrow["verdict"] == PASSING:
             fixes.append(_verdict_change(b, n))
         columns = (set(brow) | set(nrow)) - set(WALL_CLOCK_COLUMNS) - {"code_version"}
-        if all(_same(brow.get(c), nrow.get(c)) for c in columns):
-            identical += 1
+        differing = sorted(c for c in columns if not _same(brow.get(c), nrow.get(c)))
+        identical += not differing
         if "m.trajectory_digest" in brow and "m.trajectory_digest" in nrow:
             if brow["m.trajectory_digest"] == nrow["m.trajectory_digest"]:
                 same_trajectory += 1
             else:
                 changed_trajectory.append(rid)
-        sweep = nrow["sweep"]
-        if sweep not in directions:
-            directions[sweep] = _directions(n)
-        judged = directions[sweep]
-        for column in sorted(c for c in columns if c.startswith("m.") and c != "m.trajectory_digest"):
-            old_value, new_value = brow.get(column), nrow.get(column)
-            if _same(old_value, new_value):
+        for column in differing:
+            if not column.startswith("m.") or column == "m.trajectory_digest":
                 continue
             metric = column[2:]
             entry = metrics.setdefault(metric, {"runs_changed": 0, "max_abs_change": None, "at": None})
             entry["runs_changed"] += 1
-            x, y = _number(old_value), _number(new_value)
+            x, y = _number(brow.get(column)), _number(nrow.get(column))
             if x is None or y is None or not (math.isfinite(x) and math.isfinite(y)):
                 continue  # text, a metric that appeared or went, or a non-finite value: counted, not sized
             change = abs(y - x)
             if entry["max_abs_change"] is None or change > entry["max_abs_change"]:
                 entry["max_abs_change"] = round(change, 9)
                 entry["at"] = {"run_id": rid, "index": nrow["index"], "base": x, "new": y}
-            op = judged.get(metric)
+            sweep = nrow["sweep"]
+            if sweep not in directions:  # the sweep's scenario is read only where a metric changed
+                directions[sweep] = _directions(n)
+            op = directions[sweep].get(metric)
             if op is not None and y != x:
                 towards = (y > x) if op == "max" else (y < x)
                 entry.setdefault("worse", 0)
@@ -151,8 +149,6 @@ def compare(base_folder: Path, new_folder: Path) -> dict[str, Any]:
                         "by": round(change, 9),
                         "command": reproduce_command(n["run"]),
                     }
-    regressions.sort(key=lambda r: r["index"])
-    fixes.sort(key=lambda r: r["index"])
     return {
         "base": _side(base_folder, base_records),
         "new": _side(new_folder, new_records),
