@@ -26,7 +26,7 @@ from typing import Any
 
 from bywire.hil.campaign import store
 
-VERDICT_ORDER = {"error": 0, "fail": 1, "pass": 2}
+VERDICT_ORDER = {verdict: rank for rank, verdict in enumerate(store.VERDICTS)}  # worst first
 MAX_PARAMS_PLOTTED = 4
 MAX_METRICS_PLOTTED = 6
 

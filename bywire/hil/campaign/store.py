@@ -140,7 +140,7 @@ _RUN_FIELDS: dict[str, type] = {
     "checks": list,
     "invariants": list,
 }
-VERDICTS = ("pass", "fail", "error")
+VERDICTS = ("error", "fail", "pass")  # a run's verdicts, worst first
 
 
 def record_problem(record: Any, run_id: str) -> str | None:
