@@ -71,18 +71,23 @@ def test_the_pool_and_ray_give_the_same_rows_bit_for_bit(tmp_path: Path) -> None
     assert len(set(a.column("worker").to_pylist())) >= 1
 
 
+def _seeds_campaign(path: Path, seeds: int, duration_s: float) -> Path:
+    """A campaign file at `path`: `seeds` runs of accel_steps, `duration_s` each, seeds 1, 2, ..."""
+    seed_list = ", ".join(str(k) for k in range(1, seeds + 1))
+    path.write_text(
+        f"name: {path.stem}\nsweeps:\n  - scenario: accel_steps\n    set: {{duration_s: {duration_s}}}\n"
+        f"    grid:\n      seed: [{seed_list}]\n",
+        encoding="utf-8",
+    )
+    return path
+
+
 def _start_short_campaign(
     tmp_path: Path, seeds: int, runs_before: int, stdout: int
 ) -> tuple[subprocess.Popen[str], Path, Path, list[str]]:
     """`seeds` 3 s runs of accel_steps as a campaign on one worker, started in a process of its own and
     waited for until `runs_before` runs are written: (the process, its spec, its folder, its command)."""
-    spec = tmp_path / "short.yaml"
-    seed_list = ", ".join(str(k) for k in range(1, seeds + 1))
-    spec.write_text(
-        "name: short\nsweeps:\n  - scenario: accel_steps\n    set: {duration_s: 3.0}\n"
-        f"    grid:\n      seed: [{seed_list}]\n",
-        encoding="utf-8",
-    )
+    spec = _seeds_campaign(tmp_path / "short.yaml", seeds, 3.0)
     out = tmp_path / "out"
     cmd = [
         sys.executable,
@@ -213,12 +218,7 @@ def test_a_run_that_raises_is_a_row_with_its_error(tmp_path: Path) -> None:
 def test_a_damaged_run_file_is_set_aside_on_resume_and_its_run_done_again(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    spec = tmp_path / "two.yaml"
-    spec.write_text(
-        "name: two\nsweeps:\n  - scenario: accel_steps\n    set: {duration_s: 2.0}\n"
-        "    grid: {seed: [1, 2]}\n",
-        encoding="utf-8",
-    )
+    spec = _seeds_campaign(tmp_path / "two.yaml", 2, 2.0)
     out = tmp_path / "out"
     _run(spec, out, None)
     first, second = sorted((out / "runs").glob("*.json"))
