@@ -22,6 +22,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bywire.cli import main as bywire
+
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CAMPAIGNS = ("smoke", "v2v_fuzz", "urban", "platoon", "faults")
 
@@ -95,17 +97,16 @@ def main(argv: list[str] | None = None) -> int:
                         file=sys.stderr,
                     )
                     return 2
-            from bywire.cli import main as bywire
-
-            differs = bywire(
+            # 1: not identical; 2: the folders could not be compared (said on stderr)
+            compared = bywire(
                 ["campaign", "compare", str(out / "base" / name), str(out / "new" / name), "--identical"]
             )
-            status = status or differs
+            status = max(status, compared)
     finally:
         if not args.keep:
             _git("worktree", "remove", "--force", str(worktree))
     print(f"{'identical' if status == 0 else 'NOT identical'} to {base[:12]}; the campaigns' folders: {out}")
-    return 1 if status else 0
+    return status
 
 
 if __name__ == "__main__":
