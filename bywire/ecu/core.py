@@ -95,6 +95,7 @@ __all__ = [
     "CoreState",
     "EcuInputs",
     "InputVerdict",
+    "clamp_steer",
     "core_step",
     "initial_core_state",
     "judge_inputs",
@@ -257,7 +258,9 @@ def stop_time_bound_s(
     return ramp_s + v_peak / decel_mps2 + cal.stop_margin_s
 
 
-def _clamp_steer(x: float, prev: float, cal: Calibration) -> float:
+def clamp_steer(x: float, prev: float, cal: Calibration) -> float:
+    """The road-wheel angle a cycle without a steering request commands: the measured angle `x`
+    within +-steer_max (the last command `prev` if `x` is not finite)."""
     if not math.isfinite(x):
         return prev
     lim = cal.steer_max_rad
@@ -376,7 +379,7 @@ def _step_engaged(
         dt = step_dt_s(st.controller.t_s, now_s)
         steer, steer_en = steer_step(st.steer_angle_rad, inp.request_steer_angle_rad, dt, cal), True
     else:
-        steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
+        steer, steer_en = clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
     new = CoreState(
         saf,
         ctl,
@@ -467,7 +470,7 @@ def _step_stop(
     if st.steer_enable and not off:
         steer, steer_en = st.steer_angle_rad, True
     else:
-        steer, steer_en = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
+        steer, steer_en = clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal), False
     new = CoreState(
         saf,
         ctl,
@@ -522,7 +525,7 @@ def _step_passive(
     accel_along = verdict.accel_along_mps2
     engaged_gear = inp.gear_engaged
     ctl = controller_passive(now_s, accel_along if ok else 0.0, cal)
-    steer = _clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal)
+    steer = clamp_steer(inp.steer_angle_meas_rad, st.steer_angle_rad, cal)
     new = CoreState(
         saf, ctl, steer, False, False, False, v_est, trusted_t, 0.0, _INF, engaged_gear, _INF, _INF, verdict
     )

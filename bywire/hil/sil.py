@@ -39,6 +39,7 @@ from bywire.hil.scenario import Scenario, scenario_host_config
 from bywire.hil.scenario_vehicle import open_scenario_vehicle
 from bywire.hil.service_tool import ServiceTool
 from bywire.hil.sil_bus import SimVirtualBus
+from bywire.hil.sil_ecu import QuietCycleStepper
 from bywire.hil.trace import PLANT_COLUMNS
 from bywire.hil.world.links import BytePipe
 from bywire.hil.world.traffic import TRAFFIC_COLUMNS
@@ -71,9 +72,11 @@ def run_sil(
     record: Path | None = None,
     progress: Callable[[float], None] | None = None,
     leader_profile: Sequence[tuple[float, float]] = (),
+    quiet_ecu: bool = True,
 ) -> RunResult:
     """Run `scenario` in lockstep and return the traces (also written to `run_dir` when given).
-    `leader_profile` replaces the speed of the world's `replay` vehicle (`--leader-profile CSV`)."""
+    `leader_profile` replaces the speed of the world's `replay` vehicle (`--leader-profile CSV`).
+    `quiet_ecu=False` runs every ECU cycle in full (the reference `sil_ecu` is held equal to)."""
     clock = SimClock(0.0)
     tag = uuid.uuid4().hex[:8]
     vehicle_ch, link_ch = f"sil-vehicle-{tag}", f"sil-link-{tag}"
@@ -137,6 +140,7 @@ def run_sil(
             EcuConfig(),
             vehicle_profile=scenario.vehicle_profile,
         )
+        ecu_stepper = QuietCycleStepper(ecu, enabled=quiet_ecu)
         link = HostMaster(bus(link_ch), clock)
         host = HostAgent(
             host_inputs(scenario),
@@ -173,7 +177,7 @@ def run_sil(
             clock.advance_to(t)
             plant.step(t)
             if not stalls or not any(a <= t < b for a, b in stalls):
-                ecu.step(t)
+                ecu_stepper.step(t)
             if service is not None:
                 if unlatches and t >= unlatches[0]:
                     service.send_unlatch(unlatches.pop(0))
@@ -183,6 +187,7 @@ def run_sil(
                 recorder.pump()
             if progress is not None and k % report_every == 0:
                 progress(t / scenario.duration_s)
+        ecu_stepper.settle()
         wall = time.perf_counter() - wall0
         extra: dict[str, Any] = {
             "real_time_factor": round(scenario.duration_s / wall, 2) if wall > 0 else None,
