@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 import can
@@ -21,9 +22,11 @@ import pytest
 from bywire.clock import SimClock
 from bywire.ecu.app import EcuApp, EcuConfig
 from bywire.ecu.calibration import default_calibration
-from bywire.hil.scenario import load_scenario
+from bywire.ecu.core import core_step
+from bywire.hil.scenario import FaultEvent, Scenario, load_scenario
 from bywire.hil.sil import run_sil
-from bywire.hil.sil_ecu import QuietCycleStepper
+from bywire.hil.sil_ecu import PASSIVE, QuietCycleStepper, QuietRun, quiet_deadline_s, quiet_mode
+from bywire.protocol.ecu_types import EcuState
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -35,15 +38,51 @@ def _core_view(core: Any) -> tuple:
     return (core.controller, core.steer_angle_rad, core.speed_est_mps, core.speed_trusted_t_s)
 
 
+def _steering(scenario: Scenario) -> Scenario:
+    """The scripted host also steers (the STEER flag set throughout)."""
+    # Angles off the steering report's resolution: a held command then differs from the measurement.
+    return dataclasses.replace(scenario, steer_profile=((0.0, 0.0234567), (6.0, -0.0312345)))
+
+
+def _vehicle_data_lost(at_s: float) -> Callable[[Scenario], Scenario]:
+    """Wheel speeds and motion stop arriving for good at `at_s`: a blind stop, held at its deadline
+    (about 10 s later), and the hold."""
+
+    def change(scenario: Scenario) -> Scenario:
+        lost = FaultEvent(at_s=at_s, kind="drop", frames=("GW_WheelSpeeds", "GW_Motion"))
+        return dataclasses.replace(scenario, faults=(lost,), duration_s=at_s + 13.0)
+
+    return change
+
+
+# Variants of shipped scenarios, for what none of them does alone.
+VARIANTS: dict[str, tuple[str, Callable[[Scenario], Scenario]]] = {
+    "estop_disable+steering": ("estop_disable", _steering),
+    "estop_pause+steering": ("estop_pause", _steering),
+    # Three phases of the loss against the 10 ms frame and command rhythm, so that the deadline
+    # falls in a millisecond that would otherwise be quiet.
+    "vehicle_data_lost": ("corrupt_frames", _vehicle_data_lost(4.0)),
+    "vehicle_data_lost_3ms": ("corrupt_frames", _vehicle_data_lost(4.003)),
+    "vehicle_data_lost_6ms+steering": ("corrupt_frames", lambda s: _steering(_vehicle_data_lost(4.006)(s))),
+}
+
+
+def _scenario(name: str) -> Scenario:
+    if name in VARIANTS:
+        base, change = VARIANTS[name]
+        return change(load_scenario(base))
+    return load_scenario(name)
+
+
 def _record(name: str, duration_s: float, monkeypatch: pytest.MonkeyPatch, quiet: bool) -> dict[str, Any]:
     """Run `name` for `duration_s` and record the ECU after every cycle (full, quiet, settled)."""
     full: dict[float, tuple] = {}
-    advanced: dict[float, tuple] = {}
+    advanced: dict[float, tuple | None] = {}
     settled: dict[float, tuple] = {}
     steppers: list[QuietCycleStepper] = []
     app_step = EcuApp.step
     stepper_init = QuietCycleStepper.__init__
-    advance = QuietCycleStepper._advance
+    advance = QuietRun.advance
     settle = QuietCycleStepper.settle
 
     def recording_step(self: EcuApp, now_s: float) -> None:
@@ -54,12 +93,13 @@ def _record(name: str, duration_s: float, monkeypatch: pytest.MonkeyPatch, quiet
         stepper_init(self, *args, **kwargs)
         steppers.append(self)
 
-    def recording_advance(self: QuietCycleStepper, now_s: float) -> None:
+    def recording_advance(self: QuietRun, now_s: float) -> None:
         advance(self, now_s)
-        advanced[now_s] = (self._ctl, self._steer, self._v_est, self._trusted_t)
+        # A hands-off run keeps no intermediate state (settling recomputes it from the run's start).
+        advanced[now_s] = None if self.mode == PASSIVE else _core_view(self.state())
 
     def recording_settle(self: QuietCycleStepper) -> None:
-        pending, held = self._run, self._held_t
+        pending, held = self.run is not None, self._held_t
         settle(self)
         if pending:
             settled[held] = (self.ecu.core, self.ecu.last_command)
@@ -67,9 +107,9 @@ def _record(name: str, duration_s: float, monkeypatch: pytest.MonkeyPatch, quiet
     with monkeypatch.context() as m:
         m.setattr(EcuApp, "step", recording_step)
         m.setattr(QuietCycleStepper, "__init__", recording_init)
-        m.setattr(QuietCycleStepper, "_advance", recording_advance)
+        m.setattr(QuietRun, "advance", recording_advance)
         m.setattr(QuietCycleStepper, "settle", recording_settle)
-        scenario = load_scenario(name)
+        scenario = _scenario(name)
         scenario = dataclasses.replace(scenario, duration_s=min(duration_s, scenario.duration_s))
         result = run_sil(scenario, quiet_ecu=quiet)
     return {
@@ -81,14 +121,25 @@ def _record(name: str, duration_s: float, monkeypatch: pytest.MonkeyPatch, quiet
     }
 
 
-# (scenario, seconds): driving with steering, an E-stop pause and its resume, a loop stall, the
-# service unlatch after a DISABLE, corrupt frames, and a K-turn (reverse gear, shifts).
+# (scenario, seconds): driving with steering; the stops (E-stop pause and resume, DISABLE and its
+# hold with the ignition off, the driver's brake and the MANUAL after it, heartbeat loss, a frozen
+# host, corrupt and stale frames: blind stops); a loop stall; the service unlatch after a DISABLE;
+# no valid calibration (OFF); a K-turn (reverse gear, shifts); and the variants above (stops
+# while steering, which a DISABLE releases at its hold; vehicle data lost: blind stops).
 CASES = [
+    *((name, 17.0 if "lost" in name else 12.0) for name in VARIANTS),
     ("demo", 20.0),
     ("estop_pause", 12.0),
+    ("estop_disable", 12.0),
+    ("driver_brake", 12.0),
+    ("driver_override_rearm", 20.0),
+    ("heartbeat_loss", 12.0),
+    ("host_freeze", 12.0),
+    ("corrupt_frames", 10.0),
+    ("stale_frames", 10.0),
     ("loop_stall", 8.0),
     ("unlatch_with_engage_held", 20.0),
-    ("corrupt_frames", 10.0),
+    ("bad_calibration", 5.0),
     ("kturn_narrow_road", 40.0),
 ]
 
@@ -112,7 +163,7 @@ def test_quiet_cycles_leave_the_ecu_as_full_cycles_do(
         assert _same(core, ref_core) and core.verdict == ref_core.verdict, f"full cycle at {t} s"
         assert _same(cmd, ref_cmd), f"full cycle at {t} s"
     for t, view in fast["advanced"].items():
-        assert _same(view, _core_view(reference[t][0])), f"quiet cycle at {t} s"
+        assert view is None or _same(view, _core_view(reference[t][0])), f"quiet cycle at {t} s"
     for t, (core, cmd) in fast["settled"].items():
         ref_core, ref_cmd = reference[t]
         assert _same(core, ref_core), f"settled quiet run at {t} s"
@@ -129,13 +180,23 @@ def test_quiet_cycles_leave_the_ecu_as_full_cycles_do(
     assert repr(extra_ref) == repr(extra_fast)
 
 
-def test_the_shifting_and_stopping_cycles_are_full_cycles(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Only ENGAGED driving is quiet: a cycle in a stop or a shift always runs in full."""
-    fast = _record("estop_pause", 12.0, monkeypatch, quiet=True)
-    states = {core.safety.state.name for core, _ in fast["settled"].values()}
-    assert states == {"ENGAGED"}
-    stops = [t for t, (core, _) in fast["full"].items() if core.safety.state.name == "PAUSED"]
-    assert stops, "the scenario pauses"
+@pytest.mark.parametrize(
+    ("name", "duration_s", "states"),
+    [
+        ("estop_pause", 12.0, {"READY", "ENGAGED", "PAUSED"}),
+        ("estop_disable", 12.0, {"READY", "ENGAGED", "DISABLED"}),
+        ("corrupt_frames", 10.0, {"READY", "ENGAGED", "SAFE_STOP"}),
+        ("bad_calibration", 5.0, {"OFF"}),
+        ("vehicle_data_lost", 17.0, {"READY", "ENGAGED", "SAFE_STOP"}),
+    ],
+)
+def test_every_kind_of_state_has_quiet_runs(
+    name: str, duration_s: float, states: set[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Driving, stopping (seeing and blind) and hands-off states all run quiet cycles, not only driving."""
+    fast = _record(name, duration_s, monkeypatch, quiet=True)
+    settled = {core.safety.state.name for core, _ in fast["settled"].values()}
+    assert states <= settled, settled
 
 
 def test_a_bus_other_than_sils_runs_every_cycle_in_full() -> None:
@@ -171,6 +232,7 @@ def test_a_quiet_run_ends_before_every_deadline_of_the_ecu(monkeypatch: pytest.M
             assert self._run_until <= ecu._next_command_s
             assert self._run_until <= ecu._next_status_s
             assert self._run_until <= ecu.node._quiet_until_s
+            assert self._run_until <= quiet_deadline_s(ecu.core)
             assert (
                 ecu._inputs_valid_until_s
                 < self._run_until
@@ -181,6 +243,73 @@ def test_a_quiet_run_ends_before_every_deadline_of_the_ecu(monkeypatch: pytest.M
         return ok
 
     monkeypatch.setattr(QuietCycleStepper, "_run_may_start", checked)
-    scenario = dataclasses.replace(load_scenario("demo"), duration_s=5.0)
-    run_sil(scenario)
+    run_sil(dataclasses.replace(load_scenario("demo"), duration_s=5.0))
+    run_sil(_scenario("vehicle_data_lost"))  # a blind stop: its deadline binds
     assert len(starts) > 100
+
+
+def _stepper_after(name: str, duration_s: float, monkeypatch: pytest.MonkeyPatch) -> QuietCycleStepper:
+    """The stepper of a run of `name` after `duration_s`, its ECU's deadlines moved a second ahead,
+    so that the next cycle is quiet unless something else says otherwise."""
+    steppers: list[QuietCycleStepper] = []
+    init = QuietCycleStepper.__init__
+
+    def keep(self: QuietCycleStepper, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        steppers.append(self)
+
+    with monkeypatch.context() as m:
+        m.setattr(QuietCycleStepper, "__init__", keep)
+        run_sil(dataclasses.replace(load_scenario(name), duration_s=duration_s))
+    stepper = steppers[-1]
+    ecu = stepper.ecu
+    assert ecu._last_cycle_s is not None
+    t = ecu._last_cycle_s + 1e-3
+    ecu._next_command_s = ecu._next_status_s = ecu.node._quiet_until_s = t + 1.0
+    ecu._inputs_valid_until_s = t + 1.0
+    return stepper
+
+
+def test_what_makes_the_ecu_recompute_its_inputs_ends_quiet_cycles(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`EcuApp._cycle` recomputes its inputs after an event it judges once (a loop stall, an unlatch,
+    an exception, a guard trip: pending, or judged last cycle), when the executive's overrun streak
+    moved, and a frame since the node's last full tick means work for it: none of those cycles is
+    quiet, nor one whose faults differ from those reported."""
+    stepper = _stepper_after("demo", 3.0, monkeypatch)
+    ecu = stepper.ecu
+    t = ecu._last_cycle_s + 1e-3  # type: ignore[operator]
+    assert stepper._run_may_start(t), "the reference point is quiet"
+    for pending in ("_unlatch_pending", "_stall_pending", "_internal_pending", "_guard_pending"):
+        setattr(ecu, pending, True)
+        assert not stepper._run_may_start(t), pending
+        setattr(ecu, pending, False)
+    ecu.stats.overrun_streak += 1
+    assert not stepper._run_may_start(t), "overrun streak"
+    ecu.stats.overrun_streak -= 1
+    ecu.node._rx_frames += 1
+    assert not stepper._run_may_start(t), "a frame since the node's last full tick"
+    ecu.node._rx_frames -= 1
+    ecu._reported_faults ^= 1
+    assert not stepper._run_may_start(t), "faults reported"
+    ecu._reported_faults ^= 1
+    assert stepper._run_may_start(t)
+
+
+@pytest.mark.parametrize("flag", ["unlatch", "loop_stall", "internal_error", "tx_guard_trip"])
+def test_inputs_with_an_event_judged_once_are_not_reused(flag: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """In a latched stop the event's fault changes nothing the state machine does, but the next
+    cycle's inputs are recomputed without it (its active faults, and so the command, change)."""
+    stepper = _stepper_after("loop_stall", 7.0, monkeypatch)
+    ecu = stepper.ecu
+    t = ecu._last_cycle_s + 1e-3  # type: ignore[operator]
+    assert ecu.core.safety.state is EcuState.SAFE_STOP
+    assert stepper._run_may_start(t), "the reference point is quiet"
+    assert ecu._last_inputs is not None
+    event: dict[str, Any] = {flag: True}
+    inputs = dataclasses.replace(ecu._last_inputs, **event)
+    ecu._last_inputs = inputs
+    # The last cycle again, as if it had judged the event: the state and faults it leaves.
+    ecu.core, cmd = core_step(ecu.core, inputs, t - 1e-3, ecu._core_cal)
+    ecu._reported_faults = int(cmd.faults_active) | int(cmd.faults_latched)
+    assert quiet_mode(ecu.core, inputs, ecu._core_cal) == "stop", "the core alone would continue the stop"
+    assert not stepper._run_may_start(t)
