@@ -87,6 +87,12 @@ def _run_arguments(p: argparse.ArgumentParser, scenario_required: bool = True) -
         help="HIL: pin the ECU process to CPU N (keep the machine's other work off it: README "
         '"When a process falls behind")',
     )
+    p.add_argument(
+        "--every-ecu-cycle",
+        action="store_true",
+        help="SIL: run every ECU cycle in full, including those in which nothing reaches or leaves the "
+        "ECU (by default run as the controller's recurrence alone: the same results, bit for bit)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line (drawn only on a terminal)")
 
 
@@ -211,6 +217,7 @@ def _run(args: argparse.Namespace, scenario_name: str, default_mode: str) -> int
                 leader_profile=args.leader_profile,
                 perception=args.perception,
                 ecu_cpu=args.ecu_cpu,
+                quiet_ecu=not args.every_ecu_cycle,
             )
     except KeyboardInterrupt as exc:
         signum = int(getattr(exc, "signum", signal.SIGINT))

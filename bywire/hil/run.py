@@ -26,6 +26,7 @@ def run_scenario(
     perception: str | None = None,
     ecu_cpu: int | None = None,
     inspect: Callable[[Scenario, Any, dict[str, Any]], None] | None = None,
+    quiet_ecu: bool = True,
 ) -> dict[str, Any]:
     """Run one scenario (a shipped name, a file or a loaded `Scenario`) and return the result
     document (also written to `json_path` / `report_dir`).
@@ -33,7 +34,8 @@ def run_scenario(
     `perception`: `perfect` | `lidar`, how an urban scenario's host perceives (default: the scenario's);
     `ecu_cpu`: HIL only, the CPU the ECU process is pinned to (a CPU kept free of other work);
     `inspect(scenario, result, document)`: sees the run's traces before they go, and may add to the
-    document (a campaign's digest of the trajectory)."""
+    document (a campaign's digest of the trajectory);
+    `quiet_ecu`: SIL runs the ECU's quiet cycles on the cheap path (`hil.sil_ecu`; False: all in full)."""
     if ecu_cpu is not None and mode != "hil":
         raise ValueError(
             f"an ECU CPU ({ecu_cpu}) applies to --mode hil only: in {mode} the ECU is no process"
@@ -73,7 +75,14 @@ def run_scenario(
         if mode == "sil":
             from bywire.hil.sil import run_sil
 
-            result = run_sil(scenario, run_dir, record=record, progress=progress, leader_profile=profile)
+            result = run_sil(
+                scenario,
+                run_dir,
+                record=record,
+                progress=progress,
+                leader_profile=profile,
+                quiet_ecu=quiet_ecu,
+            )
         elif mode == "hil":
             from bywire.hil.runner import run_hil
 

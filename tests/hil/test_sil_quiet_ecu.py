@@ -11,14 +11,17 @@ and reverse gear.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
 import pytest
 
+from bywire.cli import main as bywire_main
 from bywire.clock import SimClock
 from bywire.ecu.app import EcuApp, EcuConfig
 from bywire.ecu.calibration import default_calibration
@@ -313,3 +316,19 @@ def test_inputs_with_an_event_judged_once_are_not_reused(flag: str, monkeypatch:
     ecu._reported_faults = int(cmd.faults_active) | int(cmd.faults_latched)
     assert quiet_mode(ecu.core, inputs, ecu._core_cal) == "stop", "the core alone would continue the stop"
     assert not stepper._run_may_start(t)
+
+
+def test_the_cli_runs_every_ecu_cycle_in_full_on_request(tmp_path: Path) -> None:
+    """`bywire hil run NAME --mode sil --every-ecu-cycle`: the reference, for a user who doubts the
+    fast path; its verdict and every metric but the wall clock's are those of the default run."""
+    docs = {}
+    for label, extra in (("quiet", []), ("full", ["--every-ecu-cycle"])):
+        out = tmp_path / f"{label}.json"
+        argv = ["hil", "run", "estop_pause", "--mode", "sil", "--json", str(out), "--quiet", *extra]
+        assert bywire_main(argv) == 0
+        docs[label] = json.loads(out.read_text())
+    for doc in docs.values():
+        doc["metrics"].pop("real_time_factor", None)
+        doc["metrics"].pop("host_runtime", None)
+    assert docs["quiet"]["verdict"] == docs["full"]["verdict"] == "pass"
+    assert docs["quiet"]["metrics"] == docs["full"]["metrics"]
